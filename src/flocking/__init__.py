@@ -1,0 +1,22 @@
+"""flocking: fast, reproducible simulations of the Vicsek family of flocking models.
+
+>>> import flocking
+>>> model = flocking.Model(dim=2, n=500, box=16.0, noise=0.5, seed=1)
+>>> sim = flocking.Simulation(model)
+>>> sim.run(20)
+>>> sim.state.positions.shape
+(500, 2)
+"""
+
+from .model import Model, ParameterError
+from .simulation import Simulation
+from .state import State
+from .trajectory import Frame, Trajectory, open
+from .writers import GSDWriter, ObservablesWriter, Writer
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Frame", "GSDWriter", "Model", "ObservablesWriter", "ParameterError", "Simulation",
+    "State", "Trajectory", "Writer", "open", "__version__",
+]

@@ -1,0 +1,5 @@
+"""``python -m flocking`` is the ``flocking`` command."""
+
+from .cli import main
+
+main()

@@ -1,0 +1,34 @@
+"""Backends: one step contract, several implementations.
+
+A backend is built from ``(model, state)`` and offers ``advance(steps)`` (take that many
+steps, return the polar order after each), ``state`` (a copy, in particle-id order),
+``step`` and ``name``. Every backend draws the same counter-based random numbers, so from the same
+state they take the same step to rounding.
+
+>>> sorted(NAMES)
+['cpu', 'cuda', 'reference']
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from ..model import ParameterError
+
+#: backend name -> (module, class)
+NAMES = {
+    "reference": ("flocking.backends.reference", "ReferenceBackend"),
+    "cpu": ("flocking.backends.cpu", "CPUBackend"),
+    "cuda": ("flocking.backends.cuda", "CUDABackend"),
+}
+
+
+def get(name: str):
+    """The backend class called ``name``."""
+    if name not in NAMES:
+        raise ParameterError(f"backend: must be one of {', '.join(map(repr, NAMES))} (got {name!r})")
+    module, cls = NAMES[name]
+    try:
+        return getattr(importlib.import_module(module), cls)
+    except ImportError as err:
+        raise ParameterError(f"backend: {name!r} is not available here ({err})") from None

@@ -1,0 +1,168 @@
+"""The reference backend: plain NumPy, O(N^2), written to be obviously right.
+
+It follows ``shared/MODEL.md`` line by line and is the oracle the fast backends are
+tested against. Use it for a few thousand particles at most.
+
+>>> from flocking import Model, State
+>>> from flocking.backends.reference import ReferenceBackend
+>>> model = Model(n=50, box=5.0, noise=0.0, seed=1)
+>>> backend = ReferenceBackend(model, State.random(model))
+>>> phi = backend.advance(3)
+>>> phi.shape, backend.state.step
+((3,), 3)
+"""
+
+from __future__ import annotations
+
+import collections
+
+import numpy as np
+
+from .. import rng
+from ..model import Model
+from ..state import State, random_unit_vectors
+
+
+def minimum_image(displacement: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Fold displacements (coordinates in ``(-L, L)``) into ``[-L/2, L/2]``, axis by axis."""
+    half = box / 2
+    return np.where(displacement > half, displacement - box,
+                    np.where(displacement < -half, displacement + box, displacement))
+
+
+def neighbour_matrix(model: Model, positions: np.ndarray) -> np.ndarray:
+    """``A[i, j]`` is True when ``j`` is in the neighbourhood of ``i`` (``i`` included)."""
+    box = np.asarray(model.box)
+    disp = minimum_image(positions[None, :, :] - positions[:, None, :], box)
+    d2 = np.zeros(disp.shape[:2])
+    for a in range(model.dim):
+        d2 += disp[:, :, a] * disp[:, :, a]
+    n = len(positions)
+    if model.neighbours == "metric":
+        return d2 < model.radius * model.radius
+    others = d2.copy()
+    np.fill_diagonal(others, np.inf)
+    # a stable sort keeps equal distances in index order: ties go to the lower index
+    nearest = np.argsort(others, axis=1, kind="stable")[:, : min(model.k, n - 1)]
+    a = np.zeros((n, n), dtype=bool)
+    a[np.arange(n)[:, None], nearest] = True
+    np.fill_diagonal(a, True)
+    return a
+
+
+def align(u: np.ndarray, m: np.ndarray, epsilon: float) -> np.ndarray:
+    """Rotate each ``u`` toward ``m`` by the fraction ``epsilon`` of the angle between them."""
+    if epsilon == 1.0:
+        return m
+    c = np.sum(u * m, axis=1)
+    if u.shape[1] == 2:
+        s = u[:, 0] * m[:, 1] - u[:, 1] * m[:, 0]
+        a = epsilon * np.arctan2(s, c)
+        return rotate_2d(u, a)
+    s = np.linalg.norm(np.cross(u, m), axis=1)
+    alpha = np.arctan2(s, c)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = (np.sin((1.0 - epsilon) * alpha)[:, None] * u + np.sin(epsilon * alpha)[:, None] * m) / s[:, None]
+    degenerate = s < 1e-12  # parallel: already there; antiparallel: no plane, keep u
+    w[degenerate] = np.where((c[degenerate] > 0)[:, None], m[degenerate], u[degenerate])
+    return w
+
+
+def rotate_2d(u: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([u[:, 0] * c - u[:, 1] * s, u[:, 0] * s + u[:, 1] * c], axis=1)
+
+
+def angular_noise(w: np.ndarray, eta: float, z0: np.ndarray, z1: np.ndarray) -> np.ndarray:
+    """Uniform on the arc (2D) or spherical cap (3D) of half-angle ``eta/2`` around ``w``."""
+    if w.shape[1] == 2:
+        return rotate_2d(w, eta * (z0 - 0.5))
+    cos_b = 1.0 - z0 * (2.0 * np.sin(eta / 4.0) ** 2)  # 1 - cos(eta/2), accurate for small eta
+    sin_b = np.sqrt(np.maximum(0.0, 1.0 - cos_b * cos_b))
+    phi = 2.0 * np.pi * z1
+    e1, e2 = perpendicular_frame(w)
+    return cos_b[:, None] * w + sin_b[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+
+
+def perpendicular_frame(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing each unit ``w`` to a right-handed orthonormal frame."""
+    a = np.zeros_like(w)
+    use_x = np.abs(w[:, 0]) < 0.9
+    a[use_x, 0] = 1.0
+    a[~use_x, 1] = 1.0
+    e1 = a - np.sum(a * w, axis=1)[:, None] * w
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    return e1, np.cross(w, e1)
+
+
+def wrap(positions: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Fold positions into ``[0, L)``."""
+    x = positions - box * np.floor(positions / box)
+    return np.where(x >= box, x - box, x)
+
+
+def heading_update(model: Model, state: State, sums: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Steps 3 to 6 of MODEL.md: from the sums of headings ``S_i`` to ``u_i(t+1)``."""
+    ids = np.arange(state.n, dtype=np.uint64)
+    z0 = rng.uniform(model.seed, state.step, ids, rng.NOISE)
+    z1 = rng.uniform(model.seed, state.step, ids, rng.NOISE + 1)
+    u = state.headings
+    s = sums.copy()
+    if model.noise_type == "vectorial":
+        s += (model.noise * counts)[:, None] * random_unit_vectors(model.dim, z0, z1)
+    norm = np.linalg.norm(s, axis=1)
+    m = np.where((norm > 0)[:, None], s / np.where(norm > 0, norm, 1.0)[:, None], u)
+    w = align(u, m, model.alignment)
+    if model.noise_type == "angular":
+        w = angular_noise(w, model.noise, z0, z1)
+    return w / np.linalg.norm(w, axis=1)[:, None]
+
+
+class ReferenceBackend:
+    """Plain NumPy implementation of one step; the oracle of the other backends."""
+
+    name = "reference"
+
+    def __init__(self, model: Model, state: State):
+        self.model = model
+        self._state = state.copy()
+        # the last `delay` states, oldest first; the initial state stands in for the past
+        self._history = collections.deque([self._state.copy()] * model.delay, maxlen=max(model.delay, 1))
+
+    @property
+    def state(self) -> State:
+        return self._state.copy()
+
+    @property
+    def step(self) -> int:
+        return self._state.step
+
+    def advance(self, steps: int) -> np.ndarray:
+        """Take ``steps`` steps; return the polar order after each."""
+        phi = np.empty(steps)
+        for t in range(steps):
+            self._step()
+            phi[t] = self._state.polar_order()
+        return phi
+
+    def _step(self) -> None:
+        model, now = self.model, self._state
+        if model.delay == 0:
+            seen = now
+            a = neighbour_matrix(model, seen.positions)
+        else:
+            seen = self._history[0]  # the state tau steps ago
+            a = neighbour_matrix(model, seen.positions)
+            np.fill_diagonal(a, False)
+        sums = a.astype(np.float64) @ seen.headings
+        counts = a.sum(axis=1).astype(np.float64)
+        if model.delay:
+            sums += now.headings
+            counts += 1.0
+        new = heading_update(model, now, sums, counts)
+        moving = new if model.update == "backward" else now.headings
+        box = np.asarray(model.box)
+        positions = wrap(now.positions + (now.speeds * model.dt)[:, None] * moving, box)
+        if model.delay:
+            self._history.append(now.copy())
+        self._state = State(positions, new, now.speeds, now.step + 1)

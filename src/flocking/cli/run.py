@@ -1,0 +1,133 @@
+"""``flocking run``: simulate one flock and leave a folder a person can open."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+
+import click
+
+from ..config import RunConfig
+from ..model import CHOICES, ParameterError
+
+#: option name -> help; every model parameter of MODEL.md, same words as the docs
+MODEL_OPTIONS = [
+    ("--dim", click.INT, "Dimension, 2 or 3. [default: 2]"),
+    ("--n", click.INT, "Number of particles (give at most two of n, density, box)."),
+    ("--density", click.FLOAT, "Number density N / volume. [default: 2 when needed]"),
+    ("--box", str, "Box side, or one per axis such as 4,5. [default: 32 when needed]"),
+    ("--speed", click.FLOAT, "Speed v0 (> 0). [default: 0.5]"),
+    ("--speeds", click.Choice(CHOICES["speeds"]), "All v0, or each uniform in (0, v0]. [default: constant]"),
+    ("--neighbours", click.Choice(CHOICES["neighbours"]), "Metric (radius) or topological (k nearest)."),
+    ("--radius", click.FLOAT, "Interaction radius R, metric neighbours. [default: 1]"),
+    ("--k", click.INT, "Number of nearest neighbours, topological. [default: 7]"),
+    ("--noise", click.FLOAT, "Noise amplitude eta: [0, 2 pi] for angular noise. [default: 1]"),
+    ("--noise-scale", click.Choice(CHOICES["noise_scale"]),
+     "'unit': --noise is eta' in [0, 1] (eta = 2 pi eta' for angular noise). [default: radians]"),
+    ("--noise-type", click.Choice(CHOICES["noise_type"]), "Angular (Vicsek) or vectorial (Gregoire-Chate)."),
+    ("--alignment", click.FLOAT, "Fraction epsilon in [0, 1] of the turn toward the neighbours. [default: 1]"),
+    ("--delay", click.INT, "Neighbours are seen this many steps late (>= 0). [default: 0]"),
+    ("--dt", click.FLOAT, "Time step (> 0). [default: 1]"),
+    ("--update", click.Choice(CHOICES["update"]), "Move along the new (backward) or old (forward) heading."),
+    ("--seed", click.INT, "The one integer that fixes every random number. [default: 0]"),
+]
+
+
+def model_options(func):
+    for name, kind, text in reversed(MODEL_OPTIONS):
+        func = click.option(name, type=kind, default=None, help=text)(func)
+    return func
+
+
+def check_output_folder(out: str, force: bool) -> None:
+    """Refuse an existing non-empty folder unless ``force``; refuse a file."""
+    if os.path.exists(out):
+        if not os.path.isdir(out):
+            raise ParameterError(f"out: {out!r} exists and is not a folder")
+        if os.listdir(out) and not force:
+            raise ParameterError(f"out: folder {out!r} is not empty; use --force to overwrite or another --out")
+
+
+def default_output_folder() -> str:
+    """``runs/run-0001``, ``runs/run-0002``, ...: the first that does not exist."""
+    i = 1
+    while os.path.exists(os.path.join("runs", f"run-{i:04d}")):
+        i += 1
+    return os.path.join("runs", f"run-{i:04d}")
+
+
+@click.command()
+@model_options
+@click.option("--steps", type=click.INT, default=None, help="Number of steps. [default: 1000]")
+@click.option("--every", type=click.INT, default=None,
+              help="A frame every K steps; 0 keeps only the first and the last. [default: 10]")
+@click.option("--init", default=None, help="random, aligned, or a GSD file whose last frame starts the run.")
+@click.option("--backend", default=None, help="cpu (numba, default), reference (NumPy) or cuda.")
+@click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
+              help="A TOML file of parameters; options given here override it.")
+@click.option("--out", default=None, help="Output folder. [default: runs/run-NNNN, a new one]")
+@click.option("--force", is_flag=True, help="Write into a non-empty output folder.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
+def run(config_file, out, force, quiet, **options):
+    """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
+
+    \b
+    Examples:
+      flocking run
+      flocking run --n 10000 --noise 2.5 --steps 5000 --every 50 --out hot
+      flocking run --dim 3 --neighbours topological --k 7 --noise-type vectorial --noise 0.4
+      flocking run --config runs/run-0001/config.toml --out again   # bit for bit
+    """
+    file_layer = RunConfig.load(config_file) if config_file else {}
+    cfg = RunConfig.from_layers(file_layer, options)
+    out = out or default_output_folder()
+    check_output_folder(out, force)
+    state = cfg.initial_state()
+    execute(cfg, state, out, quiet)
+
+
+def execute(cfg: RunConfig, state, out: str, quiet: bool) -> None:
+    """Run ``cfg`` from ``state`` into the folder ``out`` (validated already)."""
+    from ..simulation import Simulation
+    from ..writers import GSDWriter, ObservablesWriter
+
+    sim = Simulation(cfg.model, state, backend=cfg.backend)
+    sim.info["run"] = {k: v for k, v in cfg.to_dict().items() if k in ("steps", "every", "init")}
+    os.makedirs(out, exist_ok=True)
+    _write_atomic(os.path.join(out, "config.toml"), cfg.to_toml())
+    sim.writers.append(GSDWriter(os.path.join(out, "trajectory.gsd"), every=cfg.every))
+    sim.writers.append(ObservablesWriter(os.path.join(out, "observables.csv")))
+    if not quiet:
+        click.echo(f"flocking: {cfg.model} -> {out}", err=True)
+    interrupted = []
+
+    def stop(signum, frame):
+        interrupted.append(signum)
+        sim.request_stop()
+        signal.signal(signum, previous[signum])  # a second signal stops at once
+
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    start = time.perf_counter()
+    try:
+        sim.run(cfg.steps, progress=not quiet and sys.stderr.isatty())
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    elapsed = time.perf_counter() - start
+    done = sim.step - state.step
+    if interrupted:
+        click.echo(f"flocking: stopped at step {sim.step}; {out} holds every frame written so far", err=True)
+        sys.exit(130 if interrupted[0] == signal.SIGINT else 143)
+    if not quiet:
+        rate = done * cfg.model.n / elapsed if elapsed > 0 else float("inf")
+        click.echo(f"flocking: {done} steps in {elapsed:.2f} s ({rate:.3g} particle-steps/s), "
+                   f"polar order {sim.polar_order[-1]:.3f}; wrote {out}", err=True)
+
+
+def _write_atomic(path: str, text: str) -> None:
+    tmp = path + ".tmp"
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+    os.replace(tmp, path)

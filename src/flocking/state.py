@@ -1,0 +1,128 @@
+"""The state of a flock: positions, unit headings, speeds and the step counter.
+
+Arrays are in particle-id order. Positions lie in ``[0, L)`` along each axis (the GSD
+files centre them, see :mod:`flocking.writers`). Initial states draw their random numbers
+from :mod:`flocking.rng`, so they depend on the seed alone.
+
+>>> from flocking import Model, State
+>>> s = State.random(Model(n=5, box=4.0, seed=3))
+>>> s.positions.shape, s.headings.shape, s.step
+((5, 2), (5, 2), 0)
+>>> bool(np.allclose(np.linalg.norm(s.headings, axis=1), 1.0))
+True
+>>> round(State.aligned(Model(n=5, box=4.0)).polar_order(), 12)
+1.0
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+
+from . import rng
+from .model import Model, ParameterError
+
+
+@dataclasses.dataclass
+class State:
+    """Positions ``(N, d)``, unit headings ``(N, d)``, speeds ``(N,)`` and the step ``t``."""
+
+    positions: np.ndarray
+    headings: np.ndarray
+    speeds: np.ndarray
+    step: int = 0
+
+    def __post_init__(self) -> None:
+        self.positions = np.ascontiguousarray(self.positions, dtype=np.float64)
+        self.headings = np.ascontiguousarray(self.headings, dtype=np.float64)
+        self.speeds = np.ascontiguousarray(self.speeds, dtype=np.float64)
+        n, d = self.positions.shape
+        if self.headings.shape != (n, d) or self.speeds.shape != (n,):
+            raise ValueError("state: positions, headings and speeds disagree in shape")
+
+    @property
+    def n(self) -> int:
+        return self.positions.shape[0]
+
+    @property
+    def dim(self) -> int:
+        return self.positions.shape[1]
+
+    def copy(self) -> State:
+        return State(self.positions.copy(), self.headings.copy(), self.speeds.copy(), self.step)
+
+    def polar_order(self) -> float:
+        """``phi = |sum_i u_i| / N``."""
+        return float(np.linalg.norm(self.headings.sum(axis=0)) / self.n)
+
+    # -- constructors -------------------------------------------------------------------
+
+    @classmethod
+    def random(cls, model: Model) -> State:
+        """Uniform positions in the box and uniformly random headings."""
+        ids = np.arange(model.n, dtype=np.uint64)
+        positions = np.stack(
+            [rng.uniform(model.seed, 0, ids, rng.POSITION + a) * model.box[a] for a in range(model.dim)],
+            axis=1,
+        )
+        # u * L can round up to L itself: keep the half-open interval
+        positions = np.where(positions >= model.box, 0.0, positions)
+        u0 = rng.uniform(model.seed, 0, ids, rng.HEADING)
+        u1 = rng.uniform(model.seed, 0, ids, rng.HEADING + 1)
+        return cls(positions, random_unit_vectors(model.dim, u0, u1), initial_speeds(model))
+
+    @classmethod
+    def aligned(cls, model: Model) -> State:
+        """Uniform positions with every heading along +x."""
+        state = cls.random(model)
+        state.headings[:] = 0.0
+        state.headings[:, 0] = 1.0
+        return state
+
+    @classmethod
+    def from_gsd(cls, path: str | os.PathLike, model: Model) -> State:
+        """The last frame of a GSD trajectory: positions, headings and its step.
+
+        Speeds follow the model (the same seed gives the same per-particle speeds), and
+        the box, dimension and particle count of the file must match the model.
+        """
+        from .trajectory import open as open_trajectory
+
+        try:
+            with open_trajectory(path) as traj:
+                frame = traj[-1]
+        except (OSError, RuntimeError, IndexError, KeyError, ValueError) as err:
+            raise ParameterError(f"init: cannot read a frame from {os.fspath(path)!r} ({err})") from None
+        if frame.dim != model.dim:
+            raise ParameterError(f"init: the file is {frame.dim}D but dim={model.dim}")
+        if frame.n != model.n:
+            raise ParameterError(f"init: the file has {frame.n} particles but n={model.n}")
+        if not np.allclose(frame.box_lengths, model.box, rtol=1e-6):
+            raise ParameterError(f"init: the file's box {tuple(frame.box_lengths)} differs from box={model.box}")
+        box = np.asarray(model.box)
+        positions = np.mod(frame.positions.astype(np.float64) + box / 2, box)
+        positions = np.where(positions >= box, 0.0, positions)
+        headings = frame.headings.astype(np.float64)
+        headings /= np.linalg.norm(headings, axis=1, keepdims=True)
+        return cls(positions, headings, initial_speeds(model), int(frame.step))
+
+
+def random_unit_vectors(dim: int, u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
+    """Unit vectors uniform on the circle (from ``u0``) or the sphere (from ``u0, u1``)."""
+    if dim == 2:
+        angle = 2.0 * np.pi * u0
+        return np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    z = 2.0 * u0 - 1.0
+    rho = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    angle = 2.0 * np.pi * u1
+    return np.stack([rho * np.cos(angle), rho * np.sin(angle), z], axis=1)
+
+
+def initial_speeds(model: Model) -> np.ndarray:
+    """All ``v0``, or (``speeds="uniform"``) each uniform in ``(0, v0]``."""
+    if model.speeds == "constant":
+        return np.full(model.n, model.speed)
+    u = rng.uniform(model.seed, 0, np.arange(model.n, dtype=np.uint64), rng.SPEED)
+    return model.speed * (1.0 - u)
