@@ -176,7 +176,7 @@ class Model:
             density = _real("density", density, low=0.0, low_open=True)
         if n is not None and density is not None and box is not None:
             raise ParameterError("n, density, box: give at most two of them (the third follows)")
-        if n is None and density is None:
+        if density is None and (n is None or box is None):
             density = DEFAULT_DENSITY
         if box is None:
             if n is None:

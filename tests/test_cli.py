@@ -1,0 +1,197 @@
+"""`flocking run` as a user types it: outputs, conventions, repeatability and every error path."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import gsd.hoomd
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import flocking
+from flocking.cli import main
+
+SRC = os.path.dirname(os.path.dirname(flocking.__file__))
+
+
+def run(*args, check=True):
+    result = CliRunner().invoke(main, ["run", *map(str, args)])
+    if check:
+        assert result.exit_code == 0, result.output
+    return result
+
+
+def test_default_like_run_writes_a_complete_folder(tmp_path):
+    out = tmp_path / "r"
+    run("--n", 300, "--steps", 25, "--every", 10, "--out", out, "--quiet")
+    assert sorted(p.name for p in out.iterdir()) >= ["config.toml", "observables.csv", "trajectory.gsd"]
+    with gsd.hoomd.open(out / "trajectory.gsd") as f:
+        assert [fr.configuration.step for fr in f] == [0, 10, 20, 25]
+        fr = f[-1]
+        assert fr.configuration.dimensions == 2
+        box = fr.configuration.box
+        pos = fr.particles.position
+        assert np.all(pos[:, :2] >= -box[:2] / 2) and np.all(pos[:, :2] < box[:2] / 2)
+        assert np.all(pos[:, 2] == 0)
+        speed = np.linalg.norm(fr.particles.velocity, axis=1)
+        assert np.allclose(speed, 0.5, rtol=1e-6)
+    traj = flocking.open(out / "trajectory.gsd")
+    assert traj.model.n == 300 and traj.parameters["backend"] == "cpu"
+    assert traj.parameters["run"]["steps"] == 25
+    lines = (out / "observables.csv").read_text().splitlines()
+    assert lines[0] == "step,polar_order"
+    assert len(lines) == 1 + 26
+    steps, phi = np.loadtxt(out / "observables.csv", delimiter=",", skiprows=1, unpack=True)
+    assert np.array_equal(steps, np.arange(26))
+    assert np.all((phi >= 0) & (phi <= 1))
+    # the last frame's polar order is the last row's
+    assert traj[-1].polar_order() == pytest.approx(phi[-1], abs=1e-6)
+
+
+def test_config_repeats_the_run_bit_for_bit(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    run("--dim", 3, "--n", 200, "--box", "4,5,3", "--neighbours", "topological", "--k", 5, "--noise-type",
+        "vectorial", "--noise", 0.3, "--alignment", 0.5, "--delay", 2, "--speeds", "uniform", "--update",
+        "forward", "--dt", 0.5, "--seed", 11, "--steps", 30, "--every", 7, "--out", a, "-q")
+    run("--config", a / "config.toml", "--out", b, "-q")
+    for name in ("trajectory.gsd", "observables.csv", "config.toml"):
+        assert (a / name).read_bytes() == (b / name).read_bytes()
+
+
+def test_command_line_overrides_the_config_file(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('n = 100\nbox = 5.0\nnoise = 0.5\nsteps = 3\nneighbours = "topological"\n')
+    run("--config", cfg, "--noise", 2.0, "--out", tmp_path / "o", "-q")
+    model = flocking.open(tmp_path / "o" / "trajectory.gsd").model
+    assert model.noise == 2.0 and model.n == 100 and model.neighbours == "topological"
+
+
+def test_every_zero_keeps_first_and_last(tmp_path):
+    run("--n", 50, "--steps", 13, "--every", 0, "--out", tmp_path / "o", "-q")
+    assert [f.step for f in flocking.open(tmp_path / "o" / "trajectory.gsd")] == [0, 13]
+
+
+def test_noise_scale_unit_and_rectangular_box(tmp_path):
+    run("--box", "4,5", "--density", 2, "--noise", 0.25, "--noise-scale", "unit", "--steps", 2,
+        "--out", tmp_path / "o", "-q")
+    traj = flocking.open(tmp_path / "o" / "trajectory.gsd")
+    assert traj.model.noise == pytest.approx(np.pi / 2)
+    assert traj.model.n == 40 and list(traj[0].box_lengths) == [4.0, 5.0]
+
+
+def test_init_aligned_and_continue_from_a_trajectory(tmp_path):
+    run("--n", 100, "--box", 5, "--init", "aligned", "--noise", 0.0, "--steps", 5, "--out", tmp_path / "a", "-q")
+    traj = flocking.open(tmp_path / "a" / "trajectory.gsd")
+    assert np.allclose(traj[0].headings, [1.0, 0.0])
+    # continue: size, box and parameters come from the file; the step counter goes on
+    run("--init", tmp_path / "a" / "trajectory.gsd", "--steps", 4, "--out", tmp_path / "b", "-q")
+    cont = flocking.open(tmp_path / "b" / "trajectory.gsd")
+    assert cont.model == traj.model
+    assert cont[0].step == 5 and cont[-1].step == 9
+    assert np.allclose(cont[0].points, traj[-1].points, atol=1e-6)
+
+
+def test_run_3d_topological(tmp_path):
+    run("--dim", 3, "--n", 400, "--neighbours", "topological", "--steps", 5, "--out", tmp_path / "o", "-q")
+    f = flocking.open(tmp_path / "o" / "trajectory.gsd")[-1]
+    assert f.dim == 3 and f.points.shape == (400, 3)
+    assert np.allclose(np.linalg.norm(f.headings, axis=1), 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--noise", "7"], "--noise: must be in [0, 2*pi] for angular noise"),
+    (["--noise", "-1"], "--noise: must be in [0, 2*pi]"),
+    (["--alignment", "2"], "--alignment: must be in [0, 1]"),
+    (["--delay", "-3"], "--delay: must be a whole number >= 0"),
+    (["--n", "0"], "--n: must be a whole number >= 1"),
+    (["--dim", "4"], "--dim: must be one of 2, 3"),
+    (["--box", "4,5,6"], "--box: must be one number or 2 numbers for dim=2"),
+    (["--box", "-2"], "--box: must be a finite number > 0"),
+    (["--radius", "0"], "--radius: must be a finite number > 0"),
+    (["--k", "0"], "--k: must be a whole number >= 1"),
+    (["--speed", "0"], "--speed: must be a finite number > 0"),
+    (["--dt", "-1"], "--dt: must be a finite number > 0"),
+    (["--seed", "-1"], "--seed: must be a whole number >= 0"),
+    (["--steps", "-1"], "--steps: must be a whole number >= 0"),
+    (["--every", "-1"], "--every: must be a whole number >= 0"),
+    (["--n", "10", "--density", "1", "--box", "3"], "give at most two of them"),
+    (["--init", "nowhere.gsd"], "--init: must be 'random', 'aligned' or an existing .gsd file"),
+    (["--backend", "gpu"], "--backend: must be one of"),
+    (["--noise-type", "gaussian"], "'gaussian' is not one of 'angular', 'vectorial'"),
+    (["--update", "sideways"], "'sideways' is not one of 'backward', 'forward'"),
+    (["--n", "abc"], "'abc' is not a valid integer"),
+    (["--noise", "loud"], "'loud' is not a valid float"),
+    (["--config", "missing.toml"], "--config: cannot read"),
+])
+def test_bad_input_is_refused_before_anything_is_written(tmp_path, args, message):
+    out = tmp_path / "o"
+    result = CliRunner().invoke(main, ["run", *args, "--out", str(out)])
+    assert result.exit_code == 2
+    assert message in result.output
+    assert "Traceback" not in result.output
+    assert not out.exists()
+
+
+def test_bad_config_files(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("nosie = 1.0\n")
+    result = CliRunner().invoke(main, ["run", "--config", str(bad), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "nosie: unknown parameter; did you mean 'noise'?" in result.output
+    bad.write_text("noise = [1, \n")
+    result = CliRunner().invoke(main, ["run", "--config", str(bad), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "not valid TOML" in result.output
+    bad.write_text('noise = "high"\n')
+    result = CliRunner().invoke(main, ["run", "--config", str(bad), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "--noise: must be a number (got 'high')" in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_corrupt_init_file_is_refused(tmp_path):
+    bad = tmp_path / "bad.gsd"
+    bad.write_bytes(b"this is not a gsd file at all" * 10)
+    result = CliRunner().invoke(main, ["run", "--init", str(bad), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "--init: cannot read a frame" in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_non_empty_output_folder_needs_force(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "keep.txt").write_text("precious")
+    result = CliRunner().invoke(main, ["run", "--n", "20", "--steps", "2", "--out", str(out)])
+    assert result.exit_code == 2 and "not empty; use --force" in result.output
+    assert sorted(os.listdir(out)) == ["keep.txt"]
+    run("--n", 20, "--steps", 2, "--out", out, "--force", "-q")
+    assert (out / "trajectory.gsd").exists()
+
+
+def test_default_output_folders_never_overwrite(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    run("--n", 20, "--steps", 1, "-q")
+    run("--n", 20, "--steps", 1, "-q")
+    assert sorted(os.listdir(tmp_path / "runs")) == ["run-0001", "run-0002"]
+
+
+def test_interrupted_run_leaves_valid_files(tmp_path):
+    out = tmp_path / "o"
+    env = dict(os.environ, PYTHONPATH=SRC)
+    proc = subprocess.Popen([sys.executable, "-m", "flocking", "run", "--n", "20000", "--steps", "100000",
+                             "--every", "5", "--out", str(out)], env=env, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        if (out / "observables.csv").exists() and len((out / "observables.csv").read_text().splitlines()) > 30:
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert "stopped at step" in err and "Traceback" not in err
+    traj = flocking.open(out / "trajectory.gsd")
+    steps = [f.step for f in traj]
+    assert len(steps) >= 2 and steps[-1] < 100000
+    rows = np.loadtxt(out / "observables.csv", delimiter=",", skiprows=1)
+    assert rows[-1, 0] == steps[-1]  # the stop step's frame is written
+    assert np.array_equal(rows[:, 0], np.arange(len(rows)))
