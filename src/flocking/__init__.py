@@ -12,11 +12,11 @@ from .model import Model, ParameterError
 from .simulation import Simulation
 from .state import State
 from .trajectory import Frame, Trajectory, open
-from .writers import GSDWriter, ObservablesWriter, Writer
+from .writers import CheckpointWriter, GSDWriter, ObservablesWriter, Writer
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Frame", "GSDWriter", "Model", "ObservablesWriter", "ParameterError", "Simulation",
+    "CheckpointWriter", "Frame", "GSDWriter", "Model", "ObservablesWriter", "ParameterError", "Simulation",
     "State", "Trajectory", "Writer", "open", "__version__",
 ]

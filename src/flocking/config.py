@@ -23,7 +23,7 @@ from . import backends
 from .model import MODEL_KEYS, Model, ParameterError, _integer, check_keys, dumps_toml, loads_toml
 from .state import State
 
-RUN_DEFAULTS = {"steps": 1000, "every": 10, "init": "random", "backend": "cpu"}
+RUN_DEFAULTS = {"steps": 1000, "every": 10, "checkpoint_every": 1000, "init": "random", "backend": "cpu"}
 RUN_KEYS = MODEL_KEYS + tuple(RUN_DEFAULTS)
 INITS = ("random", "aligned")
 
@@ -33,12 +33,14 @@ class RunConfig:
     model: Model
     steps: int = RUN_DEFAULTS["steps"]
     every: int = RUN_DEFAULTS["every"]
+    checkpoint_every: int = RUN_DEFAULTS["checkpoint_every"]
     init: str = RUN_DEFAULTS["init"]
     backend: str = RUN_DEFAULTS["backend"]
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "steps", _integer("steps", self.steps, 0))
         object.__setattr__(self, "every", _integer("every", self.every, 0))
+        object.__setattr__(self, "checkpoint_every", _integer("checkpoint_every", self.checkpoint_every, 0))
         if not isinstance(self.init, str):
             raise ParameterError(f"init: must be 'random', 'aligned' or a .gsd file (got {self.init!r})")
         if self.init not in INITS and not os.path.isfile(self.init):
@@ -87,12 +89,21 @@ class RunConfig:
 
     def to_dict(self) -> dict[str, Any]:
         init = self.init if self.init in INITS else os.path.abspath(self.init)
-        return {**self.model.to_dict(), "steps": self.steps, "every": self.every, "init": init,
-                "backend": self.backend}
+        return {**self.model.to_dict(), "steps": self.steps, "every": self.every,
+                "checkpoint_every": self.checkpoint_every, "init": init, "backend": self.backend}
 
     def to_toml(self) -> str:
         return "# flocking run configuration: flocking run --config THIS_FILE repeats the run\n" + dumps_toml(
             self.to_dict())
+
+    def check_memory(self, available: int | None = None) -> None:
+        """Refuse, with an estimate, a run that would not fit in the available memory."""
+        need = backends.get(self.backend).bytes_needed(self.model)
+        available = available_memory() if available is None else available
+        if available and need > 0.9 * available:
+            raise ParameterError(
+                f"n: {self.model.n} particles need about {need / 2**30:.3g} GiB with backend "
+                f"{self.backend!r}, more than the {available / 2**30:.3g} GiB available")
 
     def initial_state(self) -> State:
         if self.init == "random":
@@ -118,3 +129,18 @@ def init_parameters(path: str) -> dict[str, Any]:
     if params is not None:
         return dict(params["model"])
     return {"dim": frame.dim, "n": frame.n, "box": frame.box_lengths.tolist()}
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation (MemAvailable), or 0 if unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return 0

@@ -9,12 +9,14 @@
 
 from __future__ import annotations
 
+import json
+import os
 from typing import Any
 
 import numpy as np
 
 from . import backends
-from .model import Model
+from .model import Model, ParameterError
 from .state import State
 
 #: Polar order is handed to writers at least this often (particle-steps), so that a long
@@ -27,26 +29,32 @@ class Simulation:
 
     ``state`` defaults to :meth:`State.random`. ``writers`` is a plain list of
     :class:`~flocking.writers.Writer` objects. ``polar_order`` holds the polar order of
-    every step taken by this object (the initial state first).
+    every step taken by this object (the initial state first). ``origin`` is the step the
+    whole run started from: writers' periods count from it, also after a resume.
+    ``memory`` restores what a backend remembers beyond the state (the delay history),
+    as saved in a checkpoint.
 
     The loop of :meth:`run`, in order:
 
-    1. every writer's ``begin``, then ``write`` for the first step;
+    1. every writer's ``begin``, then ``write`` if the first step is due (it is, unless
+       the run resumes between two triggers);
     2. the backend advances to the next step at which some writer is due (or a chunk of
        about two million particle-steps, or the end);
     3. writers ``observe`` the polar order of those steps, then the due ones ``write``;
     4. a stop request (:meth:`request_stop`, e.g. from a signal handler) ends the run
-       there, with the last frame written; writers are closed at the end either way.
+       there, every writer writing that step; writers are closed at the end either way.
     """
 
-    def __init__(self, model: Model, state: State | None = None, backend: str = "cpu"):
+    def __init__(self, model: Model, state: State | None = None, backend: str = "cpu",
+                 memory: dict[str, np.ndarray] | None = None, origin: int | None = None):
         self.model = model
         state = State.random(model) if state is None else state
         if state.n != model.n or state.dim != model.dim:
             raise ValueError("state: its particle count or dimension differs from the model's")
-        self.backend = backends.get(backend)(model, state)
+        self.backend = backends.get(backend)(model, state, memory=memory)
         self.writers: list = []
         self.polar_order: list[float] = [state.polar_order()]
+        self.origin = state.step if origin is None else int(origin)
         self.info: dict[str, Any] = {}
         self._stop = False
 
@@ -57,6 +65,11 @@ class Simulation:
     @property
     def step(self) -> int:
         return self.backend.step
+
+    @property
+    def stopped(self) -> bool:
+        """Whether the last :meth:`run` ended on a stop request."""
+        return self._stop
 
     def parameters(self) -> dict[str, Any]:
         """What a file needs to describe this run: the model, the backend and ``info``."""
@@ -69,8 +82,7 @@ class Simulation:
     def run(self, steps: int, progress: bool = False) -> None:
         """Take ``steps`` steps, calling the writers on their triggers."""
         self._stop = False
-        first = self.step
-        last = first + int(steps)
+        last = self.step + int(steps)
         chunk = max(1, _CHUNK_WORK // self.model.n)
         bar = None
         if progress:
@@ -78,19 +90,20 @@ class Simulation:
 
             bar = tqdm(total=int(steps), unit="step", dynamic_ncols=True, leave=False)
         try:
+            step = self.step
             for w in self.writers:
                 w.begin(self)
-                w.write(self)
-            step = first
+                if w.due(step, self.origin, last):
+                    w.write(self)
             while step < last and not self._stop:
-                target = min(last, step + chunk, *(_next_due(w, step, last) for w in self.writers))
+                target = min(last, step + chunk, *(_next_due(w, step, self.origin, last) for w in self.writers))
                 phi = self.backend.advance(target - step)
                 self.polar_order.extend(phi.tolist())
                 done = np.arange(step + 1, target + 1)
                 step = target
                 for w in self.writers:
                     w.observe(done, phi)
-                    if w.due(step, first, last) or self._stop:
+                    if w.due(step, self.origin, last) or self._stop:
                         w.write(self)
                 if bar is not None:
                     bar.update(len(done))
@@ -100,11 +113,40 @@ class Simulation:
             for w in self.writers:
                 w.close()
 
+    # -- checkpoints ---------------------------------------------------------------------
 
-def _next_due(writer, step: int, last: int) -> int:
+    def save_checkpoint(self, path: str | os.PathLike) -> None:
+        """Everything needed to continue bit for bit, written atomically (temp file, fsync, rename)."""
+        state = self.state
+        meta = {"parameters": self.parameters(), "origin": self.origin, "step": state.step}
+        arrays = {"positions": state.positions, "headings": state.headings, "speeds": state.speeds,
+                  "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)}
+        arrays.update({f"memory_{k}": v for k, v in self.backend.memory().items()})
+        path = os.fspath(path)
+        tmp = path + ".tmp"
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+    @classmethod
+    def load_checkpoint(cls, path: str | os.PathLike) -> Simulation:
+        """The simulation saved by :meth:`save_checkpoint` (writers are not saved)."""
+        try:
+            with np.load(os.fspath(path)) as data:
+                meta = json.loads(data["meta"].tobytes().decode())
+                memory = {k[len("memory_"):]: data[k] for k in data.files if k.startswith("memory_")}
+                state = State(data["positions"], data["headings"], data["speeds"], meta["step"])
+        except (OSError, ValueError, KeyError, EOFError) as err:
+            raise ParameterError(f"resume: cannot read the checkpoint {os.fspath(path)!r} ({err})") from None
+        params = meta["parameters"]
+        sim = cls(Model.from_dict(params["model"]), state, params["backend"], memory=memory, origin=meta["origin"])
+        sim.info = {k: v for k, v in params.items() if k not in ("model", "backend")}
+        return sim
+
+
+def _next_due(writer, step: int, origin: int, last: int) -> int:
     if writer.every <= 0:
         return last
-    return min(last, (step // writer.every + 1) * writer.every)
-
-
-__all__ = ["Simulation"]
+    return min(last, origin + ((step - origin) // writer.every + 1) * writer.every)

@@ -1,9 +1,9 @@
 """Writers: objects a :class:`~flocking.Simulation` calls on a trigger while it runs.
 
-A writer has ``every`` (a period in steps; ``0`` means only the first and the last step
-of a run), ``begin(sim)`` (called once when a run starts), ``write(sim)`` (at each
-triggered step), ``observe(steps, phi)`` (the polar order of every step, in blocks) and
-``close()``. Files are flushed as they go, so an interrupted run leaves valid files that
+A writer has ``every`` (a period in steps, counted from the run's origin; ``0`` means only
+the first and the last step of a run), ``begin(sim)`` (called once when a run starts),
+``write(sim)`` (at each triggered step), ``observe(steps, phi)`` (the polar order of every
+step, in blocks) and ``close()``. Files are flushed as they go, so an interrupted run leaves valid files that
 hold everything written so far.
 
 >>> import flocking, tempfile, os
@@ -31,10 +31,11 @@ class Writer:
 
     every = 0
 
-    def due(self, step: int, first: int, last: int) -> bool:
-        if step in (first, last):
+    def due(self, step: int, origin: int, last: int) -> bool:
+        """Whether ``step`` is triggered: the origin, the last step, or a period from the origin."""
+        if step in (origin, last):
             return True
-        return self.every > 0 and step % self.every == 0
+        return self.every > 0 and (step - origin) % self.every == 0
 
     def begin(self, sim) -> None:
         """Called when a run starts, before the first step."""
@@ -68,11 +69,13 @@ class GSDWriter(Writer):
         if self._file is None:
             self._file = gsd.hoomd.open(self.path, mode=self.mode)
             self._parameters = json.dumps(sim.parameters()).encode()
+            if len(self._file):
+                self._last = int(self._file[-1].configuration.step)
 
     def write(self, sim) -> None:
+        if self._last is not None and sim.step <= self._last:
+            return  # appending to a file that already holds this step
         state = sim.state
-        if state.step == self._last:
-            return
         model = sim.model
         frame = gsd.hoomd.Frame()
         frame.configuration.step = state.step
@@ -130,3 +133,15 @@ class ObservablesWriter(Writer):
         if self._file is not None:
             self._file.close()
             self._file = None
+
+
+class CheckpointWriter(Writer):
+    """Checkpoints (:meth:`Simulation.save_checkpoint`) every ``every`` steps and at the
+    last step, each written atomically over the previous one."""
+
+    def __init__(self, path: str | os.PathLike, every: int = 1000):
+        self.path = os.fspath(path)
+        self.every = int(every)
+
+    def write(self, sim) -> None:
+        sim.save_checkpoint(self.path)

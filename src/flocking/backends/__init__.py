@@ -1,8 +1,9 @@
 """Backends: one step contract, several implementations.
 
-A backend is built from ``(model, state)`` and offers ``advance(steps)`` (take that many
+A backend is built from ``(model, state, memory=None)`` and offers ``advance(steps)`` (take that many
 steps, return the polar order after each), ``state`` (a copy, in particle-id order),
-``step`` and ``name``. Every backend draws the same counter-based random numbers, so from the same
+``step``, ``name`` and ``memory()``: what it remembers beyond the state (the delay
+history), which a checkpoint saves and ``memory=`` restores. Every backend draws the same counter-based random numbers, so from the same
 state they take the same step to rounding.
 
 >>> sorted(NAMES)

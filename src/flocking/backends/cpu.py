@@ -6,9 +6,10 @@ cell, and of a row of cells, are contiguous in memory and neighbour loops read t
 nearly sequentially. ``ids`` maps a slot back to the particle, which keys the random
 numbers and the delay buffer and gives the user the id order back.
 
-Determinism. Each particle's new heading depends only on the sorted arrays, which a
-stable sort makes unique, and on counter-based random numbers; the polar order is summed
-in fixed blocks. No result depends on the number of threads.
+Determinism. The sorted order is by cell, then by particle id within a cell: a pure
+function of the state, so neither the thread count nor a restart from a checkpoint changes
+the order in which neighbours are added. Random numbers are counter-based and the polar
+order is summed in fixed blocks. No result depends on the number of threads.
 
 Cells. Metric neighbours use cells at least ``R`` wide, at most about one per particle;
 an axis with fewer than three cells visits each of its cells once and takes the minimum
@@ -92,6 +93,22 @@ def _order(cell, ncells, start, order):
         c = cell[i]
         order[fill[c]] = i
         fill[c] += 1
+
+
+@numba.njit(cache=True, parallel=True)
+def _by_id_within_cells(order, start, ids):
+    """Sort each cell's slots by particle id: the order becomes a pure function of the state,
+    so a run continued from a checkpoint adds neighbours in the same order as one that never
+    stopped."""
+    for c in numba.prange(start.shape[0] - 1):
+        for s in range(start[c] + 1, start[c + 1]):
+            o = order[s]
+            key = ids[o]
+            t = s
+            while t > start[c] and ids[order[t - 1]] > key:
+                order[t] = order[t - 1]
+                t -= 1
+            order[t] = o
 
 
 @numba.njit(cache=True, parallel=True)
@@ -394,7 +411,15 @@ class CPUBackend:
 
     name = "cpu"
 
-    def __init__(self, model: Model, state: State):
+    @staticmethod
+    def bytes_needed(model: Model) -> int:
+        """Peak memory of a run: double-buffered sorted arrays, cells, the delay ring, and
+        the id-ordered copy a writer takes."""
+        d = model.dim
+        per_particle = 2 * (2 * d * 8 + 16) + 16 + 8 * model.delay * (d + 1) + (2 * d + 1) * 8 + 24
+        return model.n * per_particle + 8 * int(np.prod(cell_grid(model)))
+
+    def __init__(self, model: Model, state: State, memory: dict | None = None):
         self.model = model
         n, d = state.n, state.dim
         self._box = np.asarray(model.box, dtype=np.float64)
@@ -417,14 +442,20 @@ class CPUBackend:
             raise ValueError("seed: the CPU backend takes seeds below 2**53")
         # ring[t % delay, id]: the neighbours' heading sum and 1 + their count at step t
         self._ring = np.zeros((max(model.delay, 1), n if model.delay else 1, d + 1))
-        self._load(state)
+        self._load(state, memory)
 
-    def _load(self, state: State) -> None:
+    def memory(self) -> dict[str, np.ndarray]:
+        """What the backend remembers beyond the state: the delay ring, indexed by id."""
+        return {"ring": self._ring.copy()} if self.model.delay else {}
+
+    def _load(self, state: State, memory: dict | None) -> None:
         _cells(state.positions, self._nc, self._nc / self._box, self._cell)
         _order(self._cell, self._ncells, self._start, self._order)
         _gather(self._order, state.positions, state.headings, state.speeds,
                 np.arange(state.n, dtype=np.int64), self._pos, self._head, self._spd, self._ids)
-        if self.model.delay:
+        if memory:
+            self._ring[:] = memory["ring"]
+        elif self.model.delay:
             self._prime_delay()
 
     def _prime_delay(self) -> None:
@@ -466,6 +497,7 @@ class CPUBackend:
                   self._cell, self._new_pos, self._new_head, self._ring, slot, self._step_count,
                   self._params)
             _order(self._cell, self._ncells, self._start, self._order)
+            _by_id_within_cells(self._order, self._start, self._ids)
             _gather(self._order, self._new_pos, self._new_head, self._spd, self._ids,
                     self._pos, self._head, self._tmp_spd, self._tmp_ids)
             self._spd, self._tmp_spd = self._tmp_spd, self._spd

@@ -123,11 +123,26 @@ class ReferenceBackend:
 
     name = "reference"
 
-    def __init__(self, model: Model, state: State):
+    @staticmethod
+    def bytes_needed(model: Model) -> int:
+        """Peak memory of a step: the dense (N, N, d) displacements and their companions."""
+        return model.n * model.n * (8 * model.dim + 24) + model.n * model.dim * 8 * (model.delay + 4)
+
+    def __init__(self, model: Model, state: State, memory: dict | None = None):
         self.model = model
         self._state = state.copy()
         # the last `delay` states, oldest first; the initial state stands in for the past
-        self._history = collections.deque([self._state.copy()] * model.delay, maxlen=max(model.delay, 1))
+        past = [self._state.copy()] * model.delay
+        if memory:
+            past = [State(p, h, state.speeds) for p, h in zip(memory["positions"], memory["headings"])]
+        self._history = collections.deque(past, maxlen=max(model.delay, 1))
+
+    def memory(self) -> dict[str, np.ndarray]:
+        """What the backend remembers beyond the state: the last ``delay`` states."""
+        if not self.model.delay:
+            return {}
+        return {"positions": np.stack([s.positions for s in self._history]),
+                "headings": np.stack([s.headings for s in self._history])}
 
     @property
     def state(self) -> State:

@@ -60,17 +60,22 @@ def default_output_folder() -> str:
 
 @click.command()
 @model_options
-@click.option("--steps", type=click.INT, default=None, help="Number of steps. [default: 1000]")
+@click.option("--steps", type=click.INT, default=None,
+              help="Number of steps (with --resume: the run's new total). [default: 1000]")
 @click.option("--every", type=click.INT, default=None,
               help="A frame every K steps; 0 keeps only the first and the last. [default: 10]")
+@click.option("--checkpoint-every", type=click.INT, default=None,
+              help="A checkpoint every K steps (0: only at the end or on a stop). [default: 1000]")
 @click.option("--init", default=None, help="random, aligned, or a GSD file whose last frame starts the run.")
 @click.option("--backend", default=None, help="cpu (numba, default), reference (NumPy) or cuda.")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
               help="A TOML file of parameters; options given here override it.")
+@click.option("--resume", "resume_dir", default=None,
+              help="Continue the run in this folder from its last checkpoint, bit for bit.")
 @click.option("--out", default=None, help="Output folder. [default: runs/run-NNNN, a new one]")
 @click.option("--force", is_flag=True, help="Write into a non-empty output folder.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
-def run(config_file, out, force, quiet, **options):
+def run(config_file, resume_dir, out, force, quiet, **options):
     """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
 
     \b
@@ -79,28 +84,69 @@ def run(config_file, out, force, quiet, **options):
       flocking run --n 10000 --noise 2.5 --steps 5000 --every 50 --out hot
       flocking run --dim 3 --neighbours topological --k 7 --noise-type vectorial --noise 0.4
       flocking run --config runs/run-0001/config.toml --out again   # bit for bit
+      flocking run --resume hot --steps 10000                       # continue, or extend
     """
+    if resume_dir is not None:
+        return resume(resume_dir, config_file, out, quiet, options)
     file_layer = RunConfig.load(config_file) if config_file else {}
     cfg = RunConfig.from_layers(file_layer, options)
+    cfg.check_memory()
     out = out or default_output_folder()
     check_output_folder(out, force)
     state = cfg.initial_state()
-    execute(cfg, state, out, quiet)
-
-
-def execute(cfg: RunConfig, state, out: str, quiet: bool) -> None:
-    """Run ``cfg`` from ``state`` into the folder ``out`` (validated already)."""
     from ..simulation import Simulation
-    from ..writers import GSDWriter, ObservablesWriter
 
     sim = Simulation(cfg.model, state, backend=cfg.backend)
-    sim.info["run"] = {k: v for k, v in cfg.to_dict().items() if k in ("steps", "every", "init")}
+    execute(cfg, sim, out, quiet)
+
+
+def resume(folder: str, config_file, out, quiet: bool, options: dict) -> None:
+    """Continue the run in ``folder`` from its checkpoint, trimming what came after it."""
+    from ..resume import rewind
+    from ..simulation import Simulation
+
+    extra = [k for k, v in options.items() if v is not None and k not in ("steps", "checkpoint_every")]
+    if extra or config_file or out:
+        names = ", ".join("--" + k.replace("_", "-") for k in extra + ["config"] * bool(config_file)
+                          + ["out"] * bool(out))
+        raise ParameterError(f"resume: continues a run as it was configured; only --steps and "
+                             f"--checkpoint-every may change (got {names})")
+    if not os.path.isdir(folder):
+        raise ParameterError(f"resume: {folder!r} is not a run folder")
+    path = os.path.join(folder, "config.toml")
+    if not os.path.isfile(path):
+        raise ParameterError(f"resume: {folder!r} has no config.toml")
+    data = RunConfig.load(path)
+    data.update({k: options[k] for k in ("steps", "checkpoint_every") if options[k] is not None})
+    cfg = RunConfig.from_dict(data)
+    checkpoint = os.path.join(folder, "checkpoint.npz")
+    if not os.path.isfile(checkpoint):
+        raise ParameterError(f"resume: {folder!r} has no checkpoint.npz to continue from")
+    sim = Simulation.load_checkpoint(checkpoint)
+    if sim.model != cfg.model:
+        raise ParameterError(f"resume: the checkpoint of {folder!r} does not belong to its config.toml")
+    remaining = sim.origin + cfg.steps - sim.step
+    if remaining < 0:
+        raise ParameterError(f"steps: must be at least {sim.step - sim.origin}, the steps already run "
+                             f"(got {cfg.steps})")
+    rewind(folder, sim.step, sim.origin, cfg.every)
+    execute(cfg, sim, folder, quiet, append=True)
+
+
+def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False) -> None:
+    """Run ``sim`` (built from ``cfg``) to ``cfg.steps`` into the folder ``out``."""
+    from ..writers import CheckpointWriter, GSDWriter, ObservablesWriter
+
+    mode = "a" if append else "w"
+    sim.info["run"] = {k: v for k, v in cfg.to_dict().items() if k in ("every", "init")}
     os.makedirs(out, exist_ok=True)
     _write_atomic(os.path.join(out, "config.toml"), cfg.to_toml())
-    sim.writers.append(GSDWriter(os.path.join(out, "trajectory.gsd"), every=cfg.every))
-    sim.writers.append(ObservablesWriter(os.path.join(out, "observables.csv")))
+    sim.writers.append(GSDWriter(os.path.join(out, "trajectory.gsd"), every=cfg.every, mode=mode))
+    sim.writers.append(ObservablesWriter(os.path.join(out, "observables.csv"), mode=mode))
+    sim.writers.append(CheckpointWriter(os.path.join(out, "checkpoint.npz"), every=cfg.checkpoint_every))
     if not quiet:
-        click.echo(f"flocking: {cfg.model} -> {out}", err=True)
+        verb = f"resuming at step {sim.step}" if append else "running"
+        click.echo(f"flocking: {verb} {cfg.model} -> {out}", err=True)
     interrupted = []
 
     def stop(signum, frame):
@@ -109,16 +155,19 @@ def execute(cfg: RunConfig, state, out: str, quiet: bool) -> None:
         signal.signal(signum, previous[signum])  # a second signal stops at once
 
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    start = time.perf_counter()
+    # a file-size limit then raises OSError (EFBIG) like a full disk, instead of killing us
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    start, first = time.perf_counter(), sim.step
     try:
-        sim.run(cfg.steps, progress=not quiet and sys.stderr.isatty())
+        sim.run(sim.origin + cfg.steps - sim.step, progress=not quiet and sys.stderr.isatty())
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
     elapsed = time.perf_counter() - start
-    done = sim.step - state.step
+    done = sim.step - first
     if interrupted:
-        click.echo(f"flocking: stopped at step {sim.step}; {out} holds every frame written so far", err=True)
+        click.echo(f"flocking: stopped at step {sim.step} with a checkpoint; {out} holds every frame so far "
+                   f"(flocking run --resume {out} continues)", err=True)
         sys.exit(130 if interrupted[0] == signal.SIGINT else 143)
     if not quiet:
         rate = done * cfg.model.n / elapsed if elapsed > 0 else float("inf")
@@ -130,4 +179,6 @@ def _write_atomic(path: str, text: str) -> None:
     tmp = path + ".tmp"
     with open(tmp, "w", encoding="utf-8") as f:
         f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
     os.replace(tmp, path)
