@@ -70,7 +70,10 @@ def default_output_folder() -> str:
 @click.option("--out", default=None, help="Output folder. [default: runs/run-NNNN, a new one]")
 @click.option("--force", is_flag=True, help="Write into a non-empty output folder.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
-def run(config_file, out, force, quiet, **options):
+@click.option("--no-plots", is_flag=True, help="No snapshot.png and polar_order.png at the end.")
+@click.option("--movie", is_flag=True, help="Write movie.mp4 at the end (see flocking animate).")
+@click.option("--show", is_flag=True, help="A window that shows the flock while it runs.")
+def run(config_file, out, force, quiet, no_plots, movie, show, **options):
     """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
 
     \b
@@ -85,10 +88,14 @@ def run(config_file, out, force, quiet, **options):
     out = out or default_output_folder()
     check_output_folder(out, force)
     state = cfg.initial_state()
-    execute(cfg, state, out, quiet)
+    execute(cfg, state, out, quiet, show=show)
+    if movie or not no_plots:
+        from ..viz import after_run
+
+        after_run(out, plots=not no_plots, movie=movie, quiet=quiet)
 
 
-def execute(cfg: RunConfig, state, out: str, quiet: bool) -> None:
+def execute(cfg: RunConfig, state, out: str, quiet: bool, show: bool = False) -> None:
     """Run ``cfg`` from ``state`` into the folder ``out`` (validated already)."""
     from ..simulation import Simulation
     from ..writers import GSDWriter, ObservablesWriter
@@ -99,6 +106,10 @@ def execute(cfg: RunConfig, state, out: str, quiet: bool) -> None:
     _write_atomic(os.path.join(out, "config.toml"), cfg.to_toml())
     sim.writers.append(GSDWriter(os.path.join(out, "trajectory.gsd"), every=cfg.every))
     sim.writers.append(ObservablesWriter(os.path.join(out, "observables.csv")))
+    if show:
+        from ..viz.live import LiveView
+
+        sim.writers.append(LiveView(every=cfg.every or 10))
     if not quiet:
         click.echo(f"flocking: {cfg.model} -> {out}", err=True)
     interrupted = []
