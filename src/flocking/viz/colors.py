@@ -2,8 +2,8 @@
 
 A heading's colour is its angle on the HSV hue circle (0 = +x red, 90 degrees = +y
 yellow-green, 180 = cyan, 270 = violet): cyclic, so a flock turning through 360 degrees
-never jumps. In 3D the hue is the azimuth in the xy plane and the colour fades to white as
-the heading tilts toward +-z, so the key is a disc whose centre means "vertical".
+never jumps. In 3D the hue is the azimuth in the xy plane and the colour pales as the
+heading tilts toward +-z, so the key is a disc whose centre means "vertical".
 
 >>> rgb = heading_colors(np.array([[1.0, 0.0], [-1.0, 0.0]]), THEMES["dark"])
 >>> rgb.round(2).tolist()

@@ -262,7 +262,7 @@ class Scene:
         ax.imshow(wheel_image(128, dim, self.theme), interpolation="antialiased")
         ax.set_axis_off()
         t = self.theme
-        label = "heading" if dim == 2 else "heading\n(white: \u00b1z)"
+        label = "heading" if dim == 2 else "heading\n(pale: \u00b1z)"
         ax.text(0.5, -0.2, label, transform=ax.transAxes, ha="center", va="top", color=t.text,
                 fontsize=0.85 * fs)
         for angle, text in ((0, "0\u00b0"), (90, "90\u00b0"), (180, "180\u00b0"), (270, "270\u00b0")):
