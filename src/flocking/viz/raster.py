@@ -9,9 +9,9 @@
 Both return ``float`` RGB arrays in [0, 1], rows top to bottom (image order).
 
 >>> from flocking.viz.colors import THEMES
->>> pos = np.array([[0.0, 0.0]]); head = np.array([[1.0, 0.0]])
+>>> pos = np.array([[0.5, 0.5]]); head = np.array([[1.0, 0.0]])
 >>> img = density_image(pos, head, (4.0, 4.0), (4, 4), THEMES["dark"], blur=False)
->>> img.shape, img[1, 2].round(2).tolist()          # row 1 from the top holds y in [0, 1)
+>>> img.shape, img[1, 2].round(2).tolist()          # row 1 from the top: y in (0, 1]
 ((4, 4, 3), [1.0, 0.0, 0.0])
 """
 

@@ -16,7 +16,7 @@ particles at the default size), and perspective in 3D.
 >>> frame = flocking.Frame(0, 2, [4, 4], np.zeros((1, 3)), np.array([[0.5, 0, 0]]))
 >>> scene = Scene.for_frame(frame, size=2.0, dpi=64)
 >>> scene.draw(frame).rgb().shape
-(128, 144, 3)
+(128, 128, 3)
 """
 
 from __future__ import annotations
@@ -275,7 +275,7 @@ class Scene:
         if self.artist is None:
             self.artist = FrameArtist(self.ax, frame, **self._args)
             if self.artist.style == "density":
-                self.key_axes.texts[0].set_text("hue: heading\nlight: density")
+                self.key_axes.texts[0].set_text("hue: heading\nstrength: density")
         else:
             self.artist.update(frame, azim=azim)
         if self.time_label is not None:
