@@ -16,7 +16,16 @@ from .writers import CheckpointWriter, GSDWriter, ObservablesWriter, Writer
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name: str):
+    # plotting imports matplotlib: only when asked for
+    if name in ("plot_frame", "animate"):
+        from . import viz
+
+        return getattr(viz, name)
+    raise AttributeError(f"module 'flocking' has no attribute {name!r}")
+
 __all__ = [
     "CheckpointWriter", "Frame", "GSDWriter", "Model", "ObservablesWriter", "ParameterError", "Simulation",
-    "State", "Trajectory", "Writer", "open", "__version__",
+    "State", "Trajectory", "Writer", "animate", "open", "plot_frame", "__version__",
 ]

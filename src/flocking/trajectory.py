@@ -74,6 +74,12 @@ class Frame:
         """``box, points = frame``: the ``(box, points)`` pair that freud accepts."""
         return iter((self.box, self.points))
 
+    def _repr_png_(self) -> bytes:
+        """A notebook shows a frame as a picture."""
+        from .viz.notebook import frame_png
+
+        return frame_png(self)
+
     def __repr__(self) -> str:
         return f"Frame(step={self.step}, n={self.n}, dim={self.dim}, box={self.box_lengths.tolist()})"
 
@@ -112,6 +118,12 @@ class Trajectory:
         if PARAMETERS_KEY not in log:
             return None
         return json.loads(np.asarray(log[PARAMETERS_KEY], dtype=np.uint8).tobytes().decode())
+
+    def _repr_html_(self) -> str:
+        """A notebook plays a trajectory as an animation (HTML/JS, no ffmpeg)."""
+        from .viz.notebook import trajectory_html
+
+        return trajectory_html(self)
 
     def close(self) -> None:
         self._file.close()

@@ -43,9 +43,11 @@ def main() -> None:
 
 
 def _register() -> None:
+    from .animate import animate
     from .run import run
 
     main.add_command(run)
+    main.add_command(animate)
 
 
 _register()

@@ -75,7 +75,10 @@ def default_output_folder() -> str:
 @click.option("--out", default=None, help="Output folder. [default: runs/run-NNNN, a new one]")
 @click.option("--force", is_flag=True, help="Write into a non-empty output folder.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
-def run(config_file, resume_dir, out, force, quiet, **options):
+@click.option("--no-plots", is_flag=True, help="No snapshot.png and polar_order.png at the end.")
+@click.option("--movie", is_flag=True, help="Write movie.mp4 at the end (see flocking animate).")
+@click.option("--show", is_flag=True, help="A window that shows the flock while it runs.")
+def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, **options):
     """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
 
     \b
@@ -87,7 +90,8 @@ def run(config_file, resume_dir, out, force, quiet, **options):
       flocking run --resume hot --steps 10000                       # continue, or extend
     """
     if resume_dir is not None:
-        return resume(resume_dir, config_file, out, quiet, options)
+        resume(resume_dir, config_file, out, quiet, options, show=show)
+        return pictures(resume_dir, no_plots, movie, quiet)
     file_layer = RunConfig.load(config_file) if config_file else {}
     cfg = RunConfig.from_layers(file_layer, options)
     cfg.check_memory()
@@ -97,10 +101,19 @@ def run(config_file, resume_dir, out, force, quiet, **options):
     from ..simulation import Simulation
 
     sim = Simulation(cfg.model, state, backend=cfg.backend)
-    execute(cfg, sim, out, quiet)
+    execute(cfg, sim, out, quiet, show=show)
+    pictures(out, no_plots, movie, quiet)
 
 
-def resume(folder: str, config_file, out, quiet: bool, options: dict) -> None:
+def pictures(out: str, no_plots: bool, movie: bool, quiet: bool) -> None:
+    """snapshot.png and polar_order.png (unless ``no_plots``), and movie.mp4 if asked."""
+    if movie or not no_plots:
+        from ..viz import after_run
+
+        after_run(out, plots=not no_plots, movie=movie, quiet=quiet)
+
+
+def resume(folder: str, config_file, out, quiet: bool, options: dict, show: bool = False) -> None:
     """Continue the run in ``folder`` from its checkpoint, trimming what came after it."""
     from ..resume import rewind
     from ..simulation import Simulation
@@ -130,10 +143,10 @@ def resume(folder: str, config_file, out, quiet: bool, options: dict) -> None:
         raise ParameterError(f"steps: must be at least {sim.step - sim.origin}, the steps already run "
                              f"(got {cfg.steps})")
     rewind(folder, sim.step, sim.origin, cfg.every)
-    execute(cfg, sim, folder, quiet, append=True)
+    execute(cfg, sim, folder, quiet, append=True, show=show)
 
 
-def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False) -> None:
+def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, show: bool = False) -> None:
     """Run ``sim`` (built from ``cfg``) to ``cfg.steps`` into the folder ``out``."""
     from ..writers import CheckpointWriter, GSDWriter, ObservablesWriter
 
@@ -144,6 +157,10 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False) ->
     sim.writers.append(GSDWriter(os.path.join(out, "trajectory.gsd"), every=cfg.every, mode=mode))
     sim.writers.append(ObservablesWriter(os.path.join(out, "observables.csv"), mode=mode))
     sim.writers.append(CheckpointWriter(os.path.join(out, "checkpoint.npz"), every=cfg.checkpoint_every))
+    if show:
+        from ..viz.live import LiveView
+
+        sim.writers.append(LiveView(every=cfg.every or 10))
     if not quiet:
         verb = f"resuming at step {sim.step}" if append else "running"
         click.echo(f"flocking: {verb} {cfg.model} -> {out}", err=True)
