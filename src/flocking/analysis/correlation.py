@@ -68,7 +68,7 @@ def grid_sums(positions, du, box, r_max: float, dr: float, max_cells: int = 1 <<
     def auto(weights):
         field = np.bincount(flat, weights=weights, minlength=size).reshape(shape)
         f = np.fft.rfftn(field)
-        return np.fft.irfftn(f * np.conj(f), s=tuple(shape))
+        return np.fft.irfftn(f * np.conj(f), s=tuple(shape), axes=tuple(range(dim)))
 
     products = sum(auto(du[:, a]) for a in range(du.shape[1]))
     counts = auto(None)

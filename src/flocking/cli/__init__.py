@@ -43,9 +43,11 @@ def main() -> None:
 
 
 def _register() -> None:
+    from .analyze import analyze
     from .run import run
 
     main.add_command(run)
+    main.add_command(analyze)
 
 
 _register()
