@@ -5,7 +5,9 @@ Successive values of ``phi`` are correlated, so the error of a time average is n
 ``tau`` (Sokal's automatic window, ``W >= 5 tau``): ``err^2 = 2 tau var / T``. The
 errors of ``<phi^2>``, ``<phi^4>``, ``chi`` and ``G`` come from a jackknife over blocks
 of at least ``4 tau`` steps (and at most ``T / 16``). A window whose two halves differ
-by more than four combined errors triggers a warning: it has likely not equilibrated.
+by more than four errors (``sqrt(2)`` times the smaller error of a half's mean: a
+transient inflates the error of its own half) triggers a warning: it has likely not
+equilibrated.
 
 >>> import numpy as np
 >>> rng = np.random.default_rng(0)
@@ -136,7 +138,7 @@ class PolarOrder(Analysis):
     binder = result("binder", "Binder cumulant G = 1 - <phi^4> / (3 <phi^2>^2).")
     binder_error = result("binder_error", "Error of G (block jackknife).")
     tau = result("tau", "Integrated autocorrelation time of phi in the window, in samples.")
-    drift = result("drift", "(second-half mean - first-half mean) / its error.")
+    drift = result("drift", "(second-half mean - first-half mean) / (sqrt(2) x the smaller half error).")
     equilibrated = result("equilibrated", "False when |drift| > 4.")
 
     def compute(self, system, n: int | None = None) -> PolarOrder:
@@ -164,7 +166,7 @@ class PolarOrder(Analysis):
         if half >= 4:
             (e1, _), (e2, _) = _mean_error(x[:half]), _mean_error(x[half:])
             diff = x[half:].mean() - x[:half].mean()
-            scale = math.hypot(e1, e2)
+            scale = math.sqrt(2.0) * min(e1, e2)  # a transient inflates its own half's error
             drift = diff / scale if scale > 0 else (0.0 if diff == 0 else math.copysign(math.inf, diff))
         equilibrated = abs(drift) <= 4.0
         if not equilibrated:

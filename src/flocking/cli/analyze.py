@@ -95,7 +95,6 @@ def analyze(run_dir, only, start, frames, radius, r_max, dr, method, out, no_plo
     """
     import warnings
 
-    from .. import analysis as fa
     from ..analysis import _input
 
     names = parse_only(only)
@@ -103,19 +102,22 @@ def analyze(run_dir, only, start, frames, radius, r_max, dr, method, out, no_plo
     if frames is not None and frames < 1:
         raise ParameterError(f"frames: must be a whole number >= 1 (got {frames})")
     if not os.path.exists(run_dir):
-        raise ParameterError(f"run_dir: no such folder or file {run_dir!r}")
+        raise ParameterError(f"RUN_DIR {run_dir!r}: no such folder or file")
     folder = run_dir if os.path.isdir(run_dir) else os.path.dirname(os.path.abspath(run_dir))
     gsd_path = _input.trajectory_path(run_dir) if (not os.path.isdir(run_dir) or os.path.exists(
         os.path.join(run_dir, "trajectory.gsd"))) else None
     obs = os.path.join(folder, "observables.csv") if os.path.isdir(run_dir) else None
     if gsd_path is None and not (obs and os.path.exists(obs) and names == ["polar"]):
-        raise ParameterError(f"run_dir: {run_dir!r} holds no trajectory.gsd")
+        raise ParameterError(f"RUN_DIR {run_dir!r}: holds no trajectory.gsd")
     out = out or folder
     if os.path.exists(out) and not os.path.isdir(out):
         raise ParameterError(f"out: {out!r} exists and is not a folder")
     model = _input.model_of(gsd_path) if gsd_path else None
     objects = {name: build(name, model, start, frames, radius, r_max, dr, method) for name in names}
-    system = fa._input.as_frames(gsd_path) if gsd_path else None
+    try:
+        system = _input.as_frames(gsd_path) if gsd_path else None
+    except ParameterError as err:
+        raise ParameterError(f"RUN_DIR {run_dir!r}: {str(err).partition(': ')[2]}") from None
     results, notes = {}, {}
     for name, obj in objects.items():
         with warnings.catch_warnings(record=True) as caught:
@@ -127,9 +129,12 @@ def analyze(run_dir, only, start, frames, radius, r_max, dr, method, out, no_plo
                 else:
                     obj.compute(system)
             except ParameterError as err:
-                if name in ("correlation", "polar", "profile") and "needs velocities" in str(err):
+                if name in ("correlation", "polar") and "needs velocities" in str(err):
                     notes[name] = str(err)
                     continue
+                key, _, rest = str(err).partition(": ")
+                if key == "system":  # the input itself: name it as the user typed it
+                    raise ParameterError(f"RUN_DIR {run_dir!r}: {rest}") from None
                 raise
         if caught:
             notes[name] = "; ".join(str(w.message) for w in caught)
