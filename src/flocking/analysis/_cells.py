@@ -80,7 +80,12 @@ def _neighbour_cells(c, cells):
 
 @_jit
 def _min_image(d, length):
-    return d - length * math.floor(d / length + 0.5)
+    # |d| < length: one comparison each way instead of a floor
+    if d > 0.5 * length:
+        return d - length
+    if d < -0.5 * length:
+        return d + length
+    return d
 
 
 def prepare(positions: np.ndarray, box: np.ndarray, cutoff: float):

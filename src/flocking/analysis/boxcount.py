@@ -45,22 +45,29 @@ def image_counts(image: np.ndarray):
 
 
 def point_counts(points: np.ndarray, origin, length: float, levels: int):
-    """``(eps, occupied boxes)`` for ``eps = length / 2^k``, ``k = 0..levels``."""
-    idx = np.clip(np.floor((points - origin) / length * 2.0**levels).astype(np.int64), 0, None)
-    dim = idx.shape[1]
-    bits = int(idx.max()).bit_length() + 1
-    if bits * dim > 63:
-        raise ParameterError(f"points: too many levels ({levels}) for {dim} dimensions")
-    mask = (1 << bits) - 1
+    """``(eps, occupied boxes)`` for ``eps = length / 2^k``, ``k = 0..levels``, coarse to
+    fine, stopping early once the count reaches half the number of points (saturation)."""
+    n, dim = points.shape
+    scaled = np.clip((points - origin) / length, 0, None)
+    extent = np.ceil(scaled.max(axis=0) + 1e-12)  # boxes of side ``length`` per axis
     counts = []
-    for _ in range(levels + 1):
-        key = np.zeros(len(idx), np.int64)
-        for a in range(dim):
-            key |= idx[:, a] << (a * bits)
-        key = np.unique(key)  # one row per occupied box
-        counts.append(len(key))
-        idx = np.stack([(key >> (a * bits)) & mask for a in range(dim)], axis=1) >> 1
-    return length / 2.0 ** np.arange(levels + 1), np.array(counts[::-1])
+    for k in range(levels + 1):
+        per_axis = (extent * 2**k).astype(np.int64)
+        idx = np.minimum(np.floor(scaled * 2.0**k).astype(np.int64), per_axis - 1)
+        key = np.ravel_multi_index(tuple(idx.T), tuple(per_axis)) if np.prod(per_axis.astype(float)) < 2**62 \
+            else None
+        if key is None:
+            break
+        if np.prod(per_axis.astype(float)) <= 8 * n:
+            occupied = np.zeros(int(np.prod(per_axis)), bool)
+            occupied[key] = True  # O(N), no sort
+            counts.append(int(occupied.sum()))
+        else:
+            counts.append(len(np.unique(key)))
+        if counts[-1] >= n / 2:
+            break
+    counts = np.array(counts)
+    return length / 2.0 ** np.arange(len(counts)), counts
 
 
 class BoxCounting(Analysis):
@@ -129,6 +136,8 @@ class BoxCounting(Analysis):
             levels = int(min(max(np.ceil(np.log2(max(n, 2)) / points.shape[1]) + 8, 4), 60 // points.shape[1] - 2))
             scales, counts = point_counts(points, origin, length, levels)
             default = (scales <= length / 2) & (counts <= max(n / 10, 1))
+            if default.sum() < 2:  # few points: go as far as half saturation
+                default = (scales <= length / 2) & (counts <= n / 2)
         fitted = default
         if self.fit_range is not None:
             eps_min, eps_max = self.fit_range
