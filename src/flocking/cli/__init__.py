@@ -43,11 +43,12 @@ def main() -> None:
 
 
 def _register() -> None:
+    from .analyze import analyze
     from .animate import animate
     from .run import run
 
-    main.add_command(run)
-    main.add_command(animate)
+    for command in (run, animate, analyze):
+        main.add_command(command)
 
 
 _register()

@@ -1,0 +1,26 @@
+"""Measurements of a flock (MODEL.md, Observables), in the style of freud.
+
+Each quantity is a class: parameters in the constructor, ``compute(system)`` returns the
+object, results are read-only properties (:class:`NotComputedError` before ``compute``),
+``plot(ax=None)`` and ``to_dict()``. ``system`` is a trajectory (``flocking.open``), a GSD
+path or run folder, a frame, a ``(box, points)`` pair, or a list of frames.
+
+>>> import numpy as np, flocking.analysis as fa
+>>> points = np.random.default_rng(0).uniform(0, 10, (2000, 2))
+>>> fa.Clusters(radius=0.01).compute((10.0, points)).num_clusters > 1900
+True
+"""
+
+from ._base import NotComputedError
+from .boxcount import BoxCounting
+from .clusters import Clusters
+from .correlation import VelocityCorrelation
+from .fluctuations import NumberFluctuations
+from .msd import MeanSquareDisplacement
+from .order import PolarOrder
+from .profile import DensityProfile
+
+__all__ = [
+    "BoxCounting", "Clusters", "DensityProfile", "MeanSquareDisplacement", "NotComputedError",
+    "NumberFluctuations", "PolarOrder", "VelocityCorrelation",
+]

@@ -1,0 +1,128 @@
+"""The freud-style object layer shared by every analysis class.
+
+A quantity takes its parameters in the constructor; ``compute(system)`` fills its
+results and returns the object; results are read-only properties that raise
+:class:`NotComputedError` until ``compute`` ran. ``to_dict()`` gives plain JSON types
+(NaN becomes ``None``) and ``plot(ax=None)`` draws on a matplotlib axis, imported lazily.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from ..model import ParameterError
+
+
+class NotComputedError(RuntimeError, AttributeError):
+    """A result was read before ``compute`` ran."""
+
+
+def result(name: str, doc: str = "") -> property:
+    """A read-only property that returns ``self._results[name]`` once ``compute`` ran."""
+
+    def get(self):
+        try:
+            return self._results[name]
+        except (AttributeError, KeyError):
+            raise NotComputedError(
+                f"{type(self).__name__}.{name}: not computed yet; call compute(...) first") from None
+
+    return property(get, doc=doc)
+
+
+class Analysis:
+    """Base class: stores results as read-only values and converts them to JSON."""
+
+    #: the results that :meth:`to_dict` reports, in order
+    _keys: tuple[str, ...] = ()
+
+    def _store(self, **values) -> None:
+        stored = {}
+        for key, value in values.items():
+            if isinstance(value, np.ndarray):
+                value = value.copy()
+                value.flags.writeable = False
+            stored[key] = value
+        self._results = stored
+
+    @property
+    def computed(self) -> bool:
+        return hasattr(self, "_results")
+
+    def parameters(self) -> dict:
+        """The constructor's parameters."""
+        return {}
+
+    def to_dict(self) -> dict:
+        """Parameters and results as plain JSON types (NaN and infinities become ``None``)."""
+        out = {"quantity": type(self).__name__, "parameters": _plain(self.parameters())}
+        out.update({key: _plain(getattr(self, key)) for key in self._keys})
+        return out
+
+    def _axis(self, ax):
+        if ax is None:
+            import matplotlib.pyplot as plt
+
+            _, ax = plt.subplots(figsize=(5, 4))
+        return ax
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={v!r}" for k, v in self.parameters().items())
+        return f"{type(self).__name__}({params})"
+
+
+def _plain(value):
+    if isinstance(value, np.ndarray):
+        return [_plain(v) for v in value.tolist()]
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, numbers.Real):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    return value
+
+
+def positive(name: str, value, *, integer: bool = False, allow_none: bool = False):
+    """Check a strictly positive number (or ``None`` when allowed)."""
+    if value is None and allow_none:
+        return None
+    kind = numbers.Integral if integer else numbers.Real
+    if isinstance(value, bool) or not isinstance(value, kind) or not math.isfinite(value) or value <= 0:
+        raise ParameterError(f"{name}: must be a positive {'integer' if integer else 'number'} (got {value!r})")
+    return int(value) if integer else float(value)
+
+
+def fit_line(x, y, sigma=None):
+    """Least-squares line ``y = a x + b``: ``(slope, intercept, slope_error)``.
+
+    The error is the formal one from ``sigma`` (when given), scaled up by
+    ``sqrt(chi^2 / dof)`` when the scatter exceeds it; without ``sigma`` it comes from
+    the residuals alone. A perfect fit has error 0.
+
+    >>> fit_line([0, 1, 2], [1, 3, 5])
+    (2.0, 1.0, 0.0)
+    """
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if len(x) < 2:
+        return float("nan"), float("nan"), float("nan")
+    w = np.ones_like(x) if sigma is None else 1.0 / np.maximum(np.asarray(sigma, float), 1e-300) ** 2
+    sw, sx, sy = w.sum(), (w * x).sum(), (w * y).sum()
+    delta = sw * (w * x * x).sum() - sx * sx
+    slope = (sw * (w * x * y).sum() - sx * sy) / delta
+    intercept = (sy - slope * sx) / sw
+    dof = len(x) - 2
+    chi2 = float((w * (y - slope * x - intercept) ** 2).sum())
+    scale = chi2 / dof if dof > 0 else 0.0
+    if sigma is not None:
+        scale = max(scale, 1.0)
+    error = math.sqrt(max(sw / delta * scale, 0.0))
+    return float(slope), float(intercept), float(round(error, 15))

@@ -1,0 +1,272 @@
+"""Everything a quantity accepts, turned into a sequence of :class:`Snapshot`.
+
+Accepted systems: a :class:`flocking.Trajectory` (``flocking.open``), a GSD path or a run
+folder holding ``trajectory.gsd``, any ``gsd.hoomd`` trajectory or frame (HOOMD
+conventions, ours or another program's), a :class:`flocking.Frame`, a ``(box, points)``
+or ``(box, points, velocities)`` tuple (``box`` a number, one length per axis, freud's
+``[Lx, Ly, Lz, xy, xz, yz]`` with ``Lz = 0`` in 2D, or a ``freud.box.Box``), or a list of
+any of these frames. Positions are wrapped into ``[0, L)`` in double precision, so both
+centred (HOOMD, freud) and corner-origin coordinates work.
+
+>>> import numpy as np
+>>> frames = as_frames((10.0, np.array([[1.0, 2.0], [-4.0, 4.5]])))
+>>> len(frames), frames[0].dim, frames[0].positions.tolist()
+(1, 2, [[1.0, 2.0], [6.0, 4.5]])
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..model import Model, ParameterError
+from ..trajectory import Frame, Trajectory, _frame
+
+
+class Snapshot:
+    """One frame as the analysis sees it: ``step``, ``box`` (d,), ``positions`` (N, d) in
+    ``[0, L)`` as float64 and unit ``headings`` (N, d), or ``None`` when no velocity is known."""
+
+    __slots__ = ("step", "box", "positions", "headings")
+
+    def __init__(self, step: int, box, positions, headings=None):
+        self.step = int(step)
+        self.box = np.asarray(box, dtype=np.float64)
+        self.positions = wrap(np.asarray(positions, dtype=np.float64), self.box)
+        self.headings = None if headings is None else unit(headings)
+
+    @property
+    def dim(self) -> int:
+        return len(self.box)
+
+    @property
+    def n(self) -> int:
+        return len(self.positions)
+
+    def require_headings(self, who: str) -> np.ndarray:
+        if self.headings is None:
+            raise ParameterError(f"system: {who} needs velocities, and this frame has none")
+        return self.headings
+
+
+def wrap(x: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Positions into ``[0, L)`` (a value that rounds to ``L`` becomes 0)."""
+    x = np.mod(x, box)
+    x[x >= box] = 0.0
+    return x
+
+
+def unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    norm = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.divide(v, norm, out=np.zeros_like(v), where=norm > 0)
+
+
+class Frames(Sequence):
+    """A lazy, indexable sequence of snapshots (a trajectory is read frame by frame)."""
+
+    def __init__(self, items, convert, steps=None):
+        self._items = items
+        self._convert = convert
+        self._steps = steps
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            steps = None if self._steps is None else self._steps[index]
+            return Frames(_Sliced(self._items, range(len(self))[index]), self._convert, steps)
+        return self._convert(self._items[index])
+
+    @property
+    def steps(self) -> np.ndarray:
+        """The step of every frame (read without loading particle data where possible)."""
+        if self._steps is None:
+            self._steps = np.array([self[i].step for i in range(len(self))], dtype=np.int64)
+        return self._steps
+
+
+class _Sliced:
+    def __init__(self, items, indices: range):
+        self._items, self._indices = items, indices
+
+    def __len__(self):
+        return len(self._indices)
+
+    def __getitem__(self, i):
+        return self._items[self._indices[i]]
+
+
+def _box_from(box, ncols: int) -> np.ndarray:
+    if hasattr(box, "Lx") and hasattr(box, "is2D"):  # freud.box.Box and look-alikes
+        return np.array([box.Lx, box.Ly] if box.is2D else [box.Lx, box.Ly, box.Lz], dtype=np.float64)
+    if isinstance(box, numbers.Real) and not isinstance(box, bool):
+        lengths = np.full(2 if ncols == 2 else 3, float(box))
+    else:
+        try:
+            lengths = np.asarray(box, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            raise ParameterError(f"box: must be a number, one length per axis or freud's 6-array (got {box!r})")
+        if len(lengths) == 6:
+            if np.any(lengths[3:] != 0):
+                raise ParameterError("box: tilted boxes are not supported (xy, xz, yz must be 0)")
+            lengths = lengths[:2] if lengths[2] == 0 else lengths[:3]
+        elif len(lengths) == 1:
+            lengths = np.full(2 if ncols == 2 else 3, lengths[0])
+        elif len(lengths) not in (2, 3):
+            raise ParameterError(f"box: must have 1, 2, 3 or 6 entries (got {len(lengths)})")
+    if not np.all(np.isfinite(lengths)) or np.any(lengths <= 0):
+        raise ParameterError(f"box: side lengths must be positive (got {lengths.tolist()})")
+    return lengths
+
+
+def from_box_points(box, points, velocities=None, step: int = 0) -> Snapshot:
+    """A snapshot from a box and an ``(N, 2)`` or ``(N, 3)`` array of points."""
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] not in (2, 3) or len(points) == 0:
+        raise ParameterError(f"points: must be a non-empty (N, 2) or (N, 3) array (got shape {points.shape})")
+    if not np.all(np.isfinite(points)):
+        raise ParameterError("points: must be finite")
+    lengths = _box_from(box, points.shape[1])
+    dim = len(lengths)
+    if points.shape[1] < dim:
+        raise ParameterError(f"points: a {dim}D box needs {dim} columns (got {points.shape[1]})")
+    headings = None
+    if velocities is not None:
+        velocities = np.asarray(velocities, dtype=np.float64)
+        if velocities.shape[0] != len(points) or velocities.ndim != 2 or velocities.shape[1] < dim:
+            raise ParameterError(f"velocities: must have shape ({len(points)}, {dim}) (got {velocities.shape})")
+        headings = velocities[:, :dim]
+    return Snapshot(step, lengths, points[:, :dim], headings)
+
+
+def from_frame(frame: Frame) -> Snapshot:
+    v = frame.velocities[:, : frame.dim].astype(np.float64)
+    headings = v if np.any(v) else None
+    return Snapshot(frame.step, frame.box_lengths, frame.positions.astype(np.float64), headings)
+
+
+def _from_any_frame(item) -> Snapshot:
+    if isinstance(item, Snapshot):
+        return item
+    if isinstance(item, Frame):
+        return from_frame(item)
+    if hasattr(item, "configuration") and hasattr(item, "particles"):  # a gsd.hoomd.Frame
+        return from_frame(_frame(item))
+    if isinstance(item, tuple) and len(item) in (2, 3):
+        return from_box_points(*item)
+    raise ParameterError(f"system: cannot read a frame from {type(item).__name__}; give a trajectory, "
+                         "a GSD path, a Frame, a (box, points) pair or a list of these")
+
+
+def _is_box_points(system) -> bool:
+    return (isinstance(system, tuple) and len(system) in (2, 3) and not _looks_like_frame(system[0])
+            and np.ndim(system[1]) == 2)
+
+
+def _looks_like_frame(x) -> bool:
+    return isinstance(x, (Frame, Snapshot, tuple)) or (hasattr(x, "configuration") and hasattr(x, "particles"))
+
+
+def trajectory_path(path) -> str:
+    """A GSD file, or the ``trajectory.gsd`` of a run folder."""
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        path = os.path.join(path, "trajectory.gsd")
+        if not os.path.exists(path):
+            raise ParameterError(f"system: folder {os.path.dirname(path)!r} holds no trajectory.gsd")
+    elif not os.path.exists(path):
+        raise ParameterError(f"system: no such file or folder {path!r}")
+    return path
+
+
+def as_frames(system) -> Frames:
+    """Normalise any accepted system to a lazy sequence of snapshots."""
+    if isinstance(system, Frames):
+        return system
+    if isinstance(system, (str, os.PathLike)):
+        path = trajectory_path(system)
+        try:
+            traj = Trajectory(path)
+        except Exception as err:  # gsd raises several kinds for a file that is not GSD
+            raise ParameterError(f"system: {path!r} is not a readable GSD file ({err})") from None
+        return as_frames(traj)
+    if isinstance(system, Trajectory):
+        return Frames(system, from_frame, _gsd_steps(system._file))
+    if hasattr(system, "file") and hasattr(system, "__getitem__") and hasattr(system, "__len__"):
+        return Frames(system, _from_any_frame, _gsd_steps(system))  # a gsd.hoomd trajectory
+    if _is_box_points(system) or _looks_like_frame(system):
+        return Frames([system], _from_any_frame)
+    if isinstance(system, (list, tuple)):
+        if len(system) == 0:
+            raise ParameterError("system: the list of frames is empty")
+        return Frames(list(system), _from_any_frame)
+    raise ParameterError(f"system: cannot read frames from {type(system).__name__}; give a trajectory, "
+                         "a GSD path, a Frame, a (box, points) pair or a list of these")
+
+
+def _gsd_steps(handle):
+    """Frame steps read from the ``configuration/step`` chunks alone (``None`` if that fails)."""
+    try:
+        f = handle.file
+        steps = []
+        for i in range(len(handle)):
+            chunk = f.read_chunk(frame=i, name="configuration/step") if f.chunk_exists(
+                frame=i, name="configuration/step") else None
+            steps.append(int(chunk[0]) if chunk is not None else 0)
+        return np.array(steps, dtype=np.int64)
+    except Exception:  # an unusual reader: fall back to reading frames
+        return None
+
+
+def model_of(system) -> Model | None:
+    """The stored :class:`~flocking.Model` of a flocking trajectory, path or run folder."""
+    try:
+        if isinstance(system, Trajectory):
+            return system.model
+        if isinstance(system, (str, os.PathLike)):
+            with Trajectory(trajectory_path(system)) as traj:
+                return traj.model
+    except Exception:
+        return None
+    return None
+
+
+def select(frames: Frames, start=None, count=None) -> Frames:
+    """The frames of a window: ``start`` a step (frames with ``step >= start``) or, when
+    ``0 < start < 1``, the fraction of frames to discard; then at most the last ``count``."""
+    n = len(frames)
+    first = window_start(start, frames.steps if start is not None and not 0 < start < 1 else None, n)
+    chosen = frames[first:]
+    if count is not None:
+        chosen = chosen[max(0, len(chosen) - count):]
+    if len(chosen) == 0:
+        raise ParameterError(f"start: no frame left after start={start!r} (the last frame is at step "
+                             f"{int(frames.steps[-1])})")
+    return chosen
+
+
+def window_start(start, steps, n: int) -> int:
+    """Index of the first kept item for ``start`` (a step, or a fraction in (0, 1))."""
+    if start is None:
+        return 0
+    if isinstance(start, bool) or not isinstance(start, numbers.Real) or not math.isfinite(start) or start < 0:
+        raise ParameterError(f"start: must be a step >= 0 or a fraction in (0, 1) (got {start!r})")
+    if 0 < start < 1:
+        return int(math.floor(start * n))
+    if start != int(start):
+        raise ParameterError(f"start: must be a whole step >= 0 or a fraction in (0, 1) (got {start!r})")
+    return int(np.searchsorted(np.asarray(steps), int(start), side="left"))
+
+
+def check_count(name: str, value):
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ParameterError(f"{name}: must be a whole number >= 1 (got {value!r})")
+    return int(value)

@@ -1,0 +1,151 @@
+"""Number fluctuations: ``dn`` against ``<n>`` in square (cubic) sub-boxes, and ``alpha``.
+
+For each sub-box side ``l`` the box is cut into ``floor(L_a / l)`` boxes along each axis,
+starting at the corner (all of it when ``l`` divides ``L``: the default sizes are
+``L_min / m`` for whole ``m``); ``<n>`` and ``dn`` are the mean and standard deviation of
+the counts over all sub-boxes of all frames. ``alpha`` is the slope of ``log dn``
+against ``log <n>`` (weighted least squares, each ``dn`` weighted by its own sampling
+error). Its error is the larger of the fit's formal error (scaled by the scatter) and a
+jackknife over frames (when there are at least four). Default sizes stop at ``m = 8``
+(at most 1/64 of the box in 2D), so that the fixed total count barely bends the curve.
+
+>>> import numpy as np
+>>> rng = np.random.default_rng(2)
+>>> frames = [(100.0, rng.uniform(0, 100, (20000, 2))) for _ in range(4)]
+>>> nf = NumberFluctuations().compute(frames)
+>>> bool(abs(nf.alpha - 0.5) < 4 * nf.alpha_error < 0.1)
+True
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..model import ParameterError
+from . import _input
+from ._base import Analysis, fit_line, result
+
+
+def default_sizes(box: np.ndarray, n: int, count: int = 24) -> np.ndarray:
+    """Sides ``L_min / m``: whole ``m`` log-spaced from 8 up to one particle per sub-box."""
+    dim = len(box)
+    m_max = max(int((n * np.min(box) ** dim / np.prod(box)) ** (1.0 / dim)), 8)
+    ms = np.unique(np.round(np.geomspace(8, m_max, count)).astype(int))
+    return np.min(box) / ms[::-1].astype(float)
+
+
+def _count_moments(positions, box, side):
+    """Sums of ``n^k`` (k = 0..4) over the whole sub-boxes of side ``side``."""
+    cells = np.floor(box / side * (1 + 1e-12)).astype(np.int64)
+    if np.any(cells < 1):
+        return None
+    idx = np.floor(positions / side).astype(np.int64)
+    inside = np.all(idx < cells, axis=1)
+    flat = np.ravel_multi_index(tuple(idx[inside].T), tuple(cells))
+    counts = np.bincount(flat, minlength=int(np.prod(cells))).astype(float)
+    return np.array([counts.size, counts.sum(), (counts**2).sum(), (counts**3).sum(), (counts**4).sum()])
+
+
+def _stats(m):
+    """``(mean, dn, error of log dn)`` from pooled sums of powers."""
+    k, s1, s2, s3, s4 = m
+    mean = s1 / k
+    var = max(s2 / k - mean * mean, 0.0)
+    mu4 = s4 / k - 4 * mean * s3 / k + 6 * mean**2 * s2 / k - 3 * mean**4
+    sigma = 0.5 * np.sqrt(max(mu4 - var * var, 0.0) / k) / var if var > 0 else np.inf
+    return mean, np.sqrt(var * k / max(k - 1, 1)), sigma
+
+
+class NumberFluctuations(Analysis):
+    """Giant number fluctuations: ``dn ~ <n>^alpha``.
+
+    Parameters
+    ----------
+    sizes: sub-box sides (default: see the module); a side larger than the box is refused.
+    fit_range: ``(n_min, n_max)``: fit only sizes whose ``<n>`` lies in it (default: all).
+    start, frames: the window (see :func:`flocking.analysis._input.select`).
+    """
+
+    _keys = ("sizes", "mean", "std", "alpha", "alpha_error", "fitted", "num_frames")
+
+    def __init__(self, sizes=None, fit_range=None, start=None, frames=None):
+        if sizes is not None:
+            sizes = np.atleast_1d(np.asarray(sizes, dtype=float))
+            if sizes.ndim != 1 or sizes.size == 0 or not np.all(np.isfinite(sizes)) or np.any(sizes <= 0):
+                raise ParameterError(f"sizes: must be positive sub-box sides (got {sizes.tolist()})")
+        if fit_range is not None:
+            if len(fit_range) != 2 or not 0 <= fit_range[0] < fit_range[1]:
+                raise ParameterError(f"fit_range: must be (n_min, n_max) with 0 <= n_min < n_max (got {fit_range!r})")
+        _input.window_start(start, [0], 1)
+        self.sizes_requested, self.fit_range = sizes, fit_range
+        self.start, self.frames = start, _input.check_count("frames", frames)
+
+    def parameters(self) -> dict:
+        return {"sizes": self.sizes_requested, "fit_range": self.fit_range, "start": self.start,
+                "frames": self.frames}
+
+    sizes = result("sizes", "Sub-box sides l.")
+    mean = result("mean", "<n> per size.")
+    std = result("std", "dn (standard deviation of the count) per size.")
+    log_error = result("log_error", "Sampling error of log dn per size.")
+    fitted = result("fitted", "Boolean mask of the sizes used in the fit.")
+    alpha = result("alpha", "Exponent of dn ~ <n>^alpha.")
+    alpha_error = result("alpha_error", "Uncertainty of alpha.")
+    intercept = result("intercept", "log dn = alpha log <n> + intercept.")
+    num_frames = result("num_frames", "Number of frames averaged.")
+
+    def compute(self, system) -> NumberFluctuations:
+        frames = _input.select(_input.as_frames(system), self.start, self.frames)
+        first = frames[0]
+        sizes = self.sizes_requested if self.sizes_requested is not None else default_sizes(first.box, first.n)
+        per_frame = []
+        for f in frames:
+            if f.dim != first.dim or np.any(f.box != first.box):
+                raise ParameterError("system: every frame must have the same box")
+            rows = [_count_moments(f.positions, f.box, s) for s in sizes]
+            if any(r is None for r in rows):
+                raise ParameterError(f"sizes: every side must fit in the box {f.box.tolist()} (got {sizes.tolist()})")
+            per_frame.append(np.array(rows))
+        per_frame = np.array(per_frame)  # (frames, sizes, 5)
+        stats = np.array([_stats(m) for m in per_frame.sum(axis=0)])
+        mean, std, sigma = stats.T
+        fitted = (std > 0) & np.isfinite(sigma) & (mean > 0)
+        if self.fit_range is not None:
+            fitted &= (mean >= self.fit_range[0]) & (mean <= self.fit_range[1])
+        alpha, intercept, error = self._fit(mean, std, sigma, fitted)
+        nf = len(per_frame)
+        if nf >= 4 and fitted.sum() >= 2:
+            groups = np.array_split(np.arange(nf), min(nf, 20))
+            total = per_frame.sum(axis=0)
+            slopes = []
+            for g in groups:
+                s = np.array([_stats(m) for m in total - per_frame[g].sum(axis=0)])
+                ok = fitted & (s[:, 1] > 0) & np.isfinite(s[:, 2])
+                slopes.append(self._fit(s[:, 0], s[:, 1], s[:, 2], ok)[0])
+            slopes = np.array(slopes)
+            g = len(groups)
+            error = max(error, float(np.sqrt((g - 1) / g * np.sum((slopes - slopes.mean()) ** 2))))
+        self._store(sizes=np.asarray(sizes, float), mean=mean, std=std, log_error=sigma, fitted=fitted,
+                    alpha=alpha, alpha_error=error, intercept=intercept, num_frames=nf)
+        return self
+
+    @staticmethod
+    def _fit(mean, std, sigma, mask):
+        if mask.sum() < 2:
+            return float("nan"), float("nan"), float("nan")
+        return fit_line(np.log(mean[mask]), np.log(std[mask]), sigma[mask])
+
+    def plot(self, ax=None):
+        """``dn`` against ``<n>`` on log-log axes with the fitted power law."""
+        ax = self._axis(ax)
+        ax.loglog(self.mean, self.std, "o", ms=4, label="data")
+        x = self.mean[self.fitted]
+        if len(x) >= 2:
+            ax.loglog(x, np.exp(self.intercept) * x**self.alpha, "-",
+                      label=f"alpha = {self.alpha:.3f} ± {self.alpha_error:.3f}")
+        ax.loglog(self.mean, np.sqrt(self.mean) * (self.std[0] / np.sqrt(self.mean[0])), ":", color="gray",
+                  label="<n>^1/2")
+        ax.set_xlabel("<n>")
+        ax.set_ylabel("dn")
+        ax.legend(loc="best")
+        return ax

@@ -1,0 +1,257 @@
+"""PolarOrder statistics, input handling, the object layer, error paths and the CLI."""
+
+import json
+import math
+import os
+import warnings
+
+import gsd.hoomd
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import flocking
+import flocking.analysis as fa
+from flocking.cli import main
+
+
+def ar1(rng, n, rho, mu=0.5, sigma=0.01, count=1):
+    x = np.empty((count, n))
+    x[:, 0] = rng.standard_normal(count) * sigma / math.sqrt(1 - rho**2)
+    noise = rng.standard_normal((count, n)) * sigma
+    for t in range(1, n):
+        x[:, t] = rho * x[:, t - 1] + noise[:, t]
+    return mu + x
+
+
+def test_polar_error_bars_cover_the_truth_at_the_right_rate():
+    # AR(1): tau_int = (1 + rho) / (2 (1 - rho)) = 9.5; the true mean is 0.5
+    rng = np.random.default_rng(0)
+    series = ar1(rng, 4000, 0.9, count=300)
+    inside1 = inside2 = 0
+    for x in series:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            op = fa.PolarOrder().compute(x, n=100)
+        inside1 += abs(op.mean - 0.5) < op.mean_error
+        inside2 += abs(op.mean - 0.5) < 2 * op.mean_error
+    sd = math.sqrt(0.68 * 0.32 / 300)
+    assert abs(inside1 / 300 - 0.683) < 3.5 * sd
+    assert abs(inside2 / 300 - 0.954) < 3.5 * math.sqrt(0.954 * 0.046 / 300)
+
+
+def test_polar_tau_and_moments_of_ar1():
+    rng = np.random.default_rng(1)
+    x = ar1(rng, 50000, 0.8)[0]
+    op = fa.PolarOrder().compute(x, n=1000)
+    assert op.tau == pytest.approx(0.5 * 1.8 / 0.2, rel=0.15)
+    expected = flocking.observables.polar_moments(x, 1000)
+    assert op.mean == expected["mean"] and op.binder == expected["binder"]
+    assert op.susceptibility == pytest.approx(1000 * np.var(x))
+    # chi error: the variance estimate of a Gaussian AR(1): rel. error sqrt(2 * 2 tau' / T)
+    tau2 = 0.5 * (1 + 0.64) / (1 - 0.64)  # tau of x^2 fluctuations: rho^2
+    assert op.susceptibility_error / op.susceptibility == pytest.approx(
+        math.sqrt(4 * tau2 / len(x)), rel=0.35)
+    assert op.equilibrated
+
+
+def test_polar_window_and_drift_warning():
+    rng = np.random.default_rng(2)
+    x = np.r_[np.linspace(0.0, 0.8, 500), 0.8 + 0.01 * rng.standard_normal(1500)]
+    with pytest.warns(RuntimeWarning, match="equilibrated"):
+        op = fa.PolarOrder().compute(x, n=10)
+    assert not op.equilibrated
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        op = fa.PolarOrder(start=600).compute(x, n=10)
+        assert op.samples == 1400 and op.window.sum() == 1400
+        op = fa.PolarOrder(start=0.5).compute(x, n=10)
+        assert op.samples == 1000
+    assert op.mean == pytest.approx(0.8, abs=0.002)
+
+
+def test_polar_from_run_folder_trajectory_and_frames(tmp_path):
+    out = tmp_path / "run"
+    res = CliRunner().invoke(main, ["run", "--n", "300", "--box", "10", "--noise", "0.5", "--steps", "40",
+                                    "--every", "5", "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from_csv = fa.PolarOrder().compute(str(out))
+        from_csv_file = fa.PolarOrder().compute(out / "observables.csv", n=300)
+        from_gsd = fa.PolarOrder().compute(out / "trajectory.gsd")
+        with flocking.open(out / "trajectory.gsd") as traj:
+            from_traj = fa.PolarOrder().compute(traj)
+            frames = list(traj)
+        from_frames = fa.PolarOrder().compute(frames)
+        with gsd.hoomd.open(out / "trajectory.gsd") as raw:
+            from_raw = fa.PolarOrder().compute(raw)
+    assert from_csv.n == 300 and from_csv.samples == 41
+    assert from_csv.mean == from_csv_file.mean
+    assert from_gsd.steps.tolist() == list(range(0, 41, 5))
+    np.testing.assert_allclose(from_gsd.series, from_csv.series[::5], atol=1e-6)
+    for other in (from_traj, from_frames, from_raw):
+        np.testing.assert_array_equal(other.series, from_gsd.series)
+
+
+def test_inputs_agree(tmp_path):
+    model = flocking.Model(n=400, box=12.0, noise=0.4, seed=5)
+    sim = flocking.Simulation(model)
+    path = tmp_path / "t.gsd"
+    sim.writers.append(flocking.GSDWriter(path, every=5))
+    sim.run(10)
+    with flocking.open(path) as traj:
+        frame = traj[-1]
+    vc = lambda s: fa.VelocityCorrelation(r_max=3.0).compute(s).correlation  # noqa: E731
+    ref = vc(frame)
+    np.testing.assert_allclose(vc((frame.box, frame.points, frame.velocities)), ref)
+    np.testing.assert_allclose(vc((12.0, frame.positions + 6.0, frame.headings)), ref)
+    np.testing.assert_allclose(vc([frame]), ref)
+    with gsd.hoomd.open(path) as raw:
+        np.testing.assert_allclose(vc(raw[len(raw) - 1]), ref)
+    # a run folder and a path: its stored radius is the cluster radius
+    cl = fa.Clusters().compute(path)
+    assert cl.radius_used == 1.0 and cl.num_frames == 3
+    assert fa.Clusters(frames=1).compute(tmp_path.joinpath("t.gsd")).num_frames == 1
+
+
+def test_results_before_compute_and_read_only():
+    for cls in (fa.PolarOrder, fa.NumberFluctuations, fa.VelocityCorrelation, fa.DensityProfile,
+                fa.Clusters, fa.BoxCounting, fa.MeanSquareDisplacement):
+        obj = cls()
+        name = cls._keys[1]
+        with pytest.raises(fa.NotComputedError, match="compute"):
+            getattr(obj, name)
+        with pytest.raises(RuntimeError):
+            obj.to_dict()
+    bc = fa.BoxCounting().compute(np.ones((8, 8), bool))
+    with pytest.raises(AttributeError):
+        bc.dimension = 3
+    with pytest.raises(ValueError):
+        bc.counts[0] = 7
+    assert json.loads(json.dumps(bc.to_dict()))["dimension"] == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: fa.PolarOrder(start=-1), lambda: fa.PolarOrder(start=2.5), lambda: fa.PolarOrder(start="x"),
+    lambda: fa.NumberFluctuations(sizes=[-1]), lambda: fa.NumberFluctuations(fit_range=(5, 1)),
+    lambda: fa.NumberFluctuations(frames=0), lambda: fa.VelocityCorrelation(r_max=0),
+    lambda: fa.VelocityCorrelation(method="fft"), lambda: fa.VelocityCorrelation(r_max=1, dr=2),
+    lambda: fa.DensityProfile(axis=3), lambda: fa.DensityProfile(threshold=-1),
+    lambda: fa.Clusters(radius=-2), lambda: fa.BoxCounting(fit_range=(3, 1)),
+    lambda: fa.MeanSquareDisplacement(max_lag=0),
+])
+def test_bad_parameters(make):
+    with pytest.raises(flocking.ParameterError):
+        make()
+
+
+def test_bad_inputs(tmp_path):
+    pts = np.random.default_rng(0).uniform(0, 5, (50, 2))
+    cases = [
+        (fa.Clusters(), "no/such/path"),
+        (fa.Clusters(), str(tmp_path)),                       # a folder without trajectory
+        (fa.Clusters(), 42),
+        (fa.Clusters(), []),
+        (fa.Clusters(), (5.0, np.zeros((3, 4)))),
+        (fa.Clusters(), ((-1.0, 5.0), pts)),
+        (fa.Clusters(), ([5.0, 5.0, 0, 0.1, 0, 0], pts)),   # tilted
+        (fa.VelocityCorrelation(), (5.0, pts)),              # no velocities
+        (fa.NumberFluctuations(sizes=[6.0]), (5.0, pts)),
+        (fa.PolarOrder(), np.array([])),
+        (fa.PolarOrder(start=100), np.ones(50)),
+        (fa.MeanSquareDisplacement(), (5.0, pts)),
+        (fa.BoxCounting(), np.zeros((4, 4), bool)),
+        (fa.BoxCounting(fit_range=(100, 200)), np.ones((4, 4), bool)),
+        (fa.DensityProfile(axis=2), (5.0, pts)),
+    ]
+    not_gsd = tmp_path / "x.gsd"
+    not_gsd.write_text("hello")
+    cases.append((fa.Clusters(), str(not_gsd)))
+    for obj, system in cases:
+        with pytest.raises(flocking.ParameterError):
+            obj.compute(system)
+    with pytest.raises(flocking.ParameterError, match="n:"):
+        fa.PolarOrder().compute(np.ones(10), n=0)
+
+
+def test_plots_and_dicts():
+    import matplotlib
+    matplotlib.use("Agg")
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(0, 20, (3000, 2))
+    u = rng.normal(size=(3000, 2))
+    frames = [fa._input.from_box_points(20.0, (pts + 0.1 * t) % 20, u, step=t) for t in range(4)]
+    objs = [fa.PolarOrder().compute(rng.uniform(0, 1, 100), n=5), fa.NumberFluctuations().compute(frames),
+            fa.VelocityCorrelation(r_max=5).compute(frames), fa.DensityProfile().compute(frames),
+            fa.Clusters().compute(frames), fa.BoxCounting().compute(frames),
+            fa.MeanSquareDisplacement().compute(frames)]
+    for obj in objs:
+        ax = obj.plot()
+        assert ax.has_data()
+        text = json.dumps(obj.to_dict(), allow_nan=False)
+        assert type(obj).__name__ in text
+    assert objs[-1].msd[0] == pytest.approx(2 * 0.1**2)
+
+
+# --- command line --------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "run"
+    res = CliRunner().invoke(main, ["run", "--n", "800", "--box", "20", "--noise", "0.5", "--radius", "1.5",
+                                    "--steps", "60", "--every", "5", "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    return out
+
+
+def test_cli_analyze_everything(run_dir):
+    res = CliRunner().invoke(main, ["analyze", str(run_dir), "--start", "20", "-q"])
+    assert res.exit_code == 0, res.output
+    data = json.loads((run_dir / "analysis.json").read_text())
+    for key in ("polar", "fluctuations", "correlation", "profile", "clusters", "boxcount", "msd"):
+        assert key in data
+    assert data["clusters"]["radius_used"] == 1.5
+    assert data["model"]["n"] == 800
+    for stem in ("polar_order", "number_fluctuations", "velocity_correlation", "density_profile",
+                 "cluster_sizes", "box_counting", "msd"):
+        assert (run_dir / f"{stem}.csv").stat().st_size > 0
+        assert (run_dir / f"{stem}.png").read_bytes()[:4] == b"\x89PNG"
+    rows = (run_dir / "polar_order.csv").read_text().splitlines()
+    assert rows[0] == "step,polar_order,in_window" and len(rows) == 62
+    assert data["polar"]["samples"] == 41
+    assert data["msd"]["lags"][0] == 5
+
+
+def test_cli_only_and_out(run_dir, tmp_path):
+    out = tmp_path / "res"
+    res = CliRunner().invoke(main, ["analyze", str(run_dir / "trajectory.gsd"), "--only", "clusters,boxcount",
+                                    "--frames", "2", "--radius", "0.5", "--out", str(out), "--no-plots", "-q"])
+    assert res.exit_code == 0, res.output
+    data = json.loads((out / "analysis.json").read_text())
+    assert set(data) >= {"clusters", "boxcount"} and "polar" not in data
+    assert data["clusters"]["num_frames"] == 2 and data["clusters"]["radius_used"] == 0.5
+    assert sorted(os.listdir(out)) == ["analysis.json", "box_counting.csv", "cluster_sizes.csv"]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["analyze", "/no/such/dir"], "RUN_DIR"),
+    (["analyze", "{run}", "--only", "polar,nope"], "--only"),
+    (["analyze", "{run}", "--start", "abc"], "--start"),
+    (["analyze", "{run}", "--frames", "0"], "--frames"),
+    (["analyze", "{run}", "--r-max", "-1", "--only", "correlation"], "--r-max"),
+    (["analyze", "{run}", "--method", "magic"], "method"),
+    (["analyze", "{empty}"], "trajectory"),
+    (["analyze", "{bad}"], "RUN_DIR"),
+])
+def test_cli_errors(run_dir, tmp_path, args, message):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    bad = tmp_path / "bad.gsd"
+    bad.write_text("not gsd")
+    args = [a.format(run=run_dir, empty=empty, bad=bad) for a in args]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code != 0
+    assert message in res.output
+    assert "Traceback" not in res.output
+    assert not (empty / "analysis.json").exists()
