@@ -27,7 +27,8 @@ def run(*args, check=True):
 def test_default_like_run_writes_a_complete_folder(tmp_path):
     out = tmp_path / "r"
     run("--n", 300, "--steps", 25, "--every", 10, "--out", out, "--quiet")
-    assert sorted(p.name for p in out.iterdir()) >= ["config.toml", "observables.csv", "trajectory.gsd"]
+    assert {p.name for p in out.iterdir()} == {"config.toml", "observables.csv", "trajectory.gsd", "checkpoint.npz",
+                                               "snapshot.png", "polar_order.png"}
     with gsd.hoomd.open(out / "trajectory.gsd") as f:
         assert [fr.configuration.step for fr in f] == [0, 10, 20, 25]
         fr = f[-1]
