@@ -43,9 +43,11 @@ def main() -> None:
 
 
 def _register() -> None:
+    from .play import play
     from .run import run
 
     main.add_command(run)
+    main.add_command(play)
 
 
 _register()
