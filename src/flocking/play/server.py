@@ -43,7 +43,7 @@ log = logging.getLogger("flocking.play")
 def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16) -> Starlette:
     """The Starlette app; every new tab starts from ``model`` (a random state)."""
     check_limits(model)
-    sessions: set[Session] = set()
+    sessions: dict[Session, asyncio.Task] = {}  # each tab's session and its stepping task
 
     async def index(request):
         return FileResponse(STATIC / "index.html", headers=HEADERS)
@@ -59,9 +59,9 @@ def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16) -> St
             await ws.close(code=1013)
             return
         session = Session(model)
-        sessions.add(session)
         lock, wake = asyncio.Lock(), asyncio.Event()
         stepping = asyncio.create_task(stream(ws, session, lock, wake, 1.0 / fps))
+        sessions[session] = stepping
         try:
             while True:
                 message = await ws.receive()
@@ -75,10 +75,9 @@ def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16) -> St
                 wake.set()
         except WebSocketDisconnect:
             pass
-        finally:
+        finally:  # no await before the cleanup: this task may itself be cancelled
+            del sessions[session]
             stepping.cancel()
-            await asyncio.gather(stepping, return_exceptions=True)
-            sessions.discard(session)
 
     app = Starlette(routes=[
         Route("/", index),
