@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import logging
 import pathlib
 from urllib.parse import urlsplit
 
@@ -37,7 +36,6 @@ HEADERS = {
     "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'",
     "Cache-Control": "no-cache",
 }
-log = logging.getLogger("flocking.play")
 
 
 def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16) -> Starlette:
