@@ -45,9 +45,10 @@ def main() -> None:
 def _register() -> None:
     from .analyze import analyze
     from .animate import animate
+    from .play import play
     from .run import run
 
-    for command in (run, animate, analyze):
+    for command in (run, animate, analyze, play):
         main.add_command(command)
 
 

@@ -1,0 +1,88 @@
+"""``flocking play``: the simulation live in the browser, for teaching and exploring."""
+
+from __future__ import annotations
+
+import socket
+import webbrowser
+
+import click
+
+from ..model import DEFAULT_DENSITY, Model, ParameterError
+from .run import model_options
+
+#: what a new tab shows unless options say otherwise: a flock that orders within seconds
+PLAY_DEFAULTS = {"n": 4000, "density": DEFAULT_DENSITY, "noise": 1.0}
+EXTRA = "flocking play needs its web extra: pip install 'flocking[play]'"
+
+
+@click.command()
+@model_options
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to listen on; anything but 127.0.0.1 lets other machines connect.")
+@click.option("--port", type=click.IntRange(0, 65535), default=8765, show_default=True,
+              help="Port to listen on; 0 picks a free one.")
+@click.option("--no-browser", is_flag=True, help="Print the address instead of opening a browser.")
+def play(host, port, no_browser, **options):
+    """Run a flock on this machine and watch and steer it in the browser.
+
+    Every browser tab gets its own simulation (the cpu backend); its sliders change the
+    running simulation. The options set what a new tab starts with.
+
+    \b
+    Examples:
+      flocking play
+      flocking play --n 10000 --noise 2 --port 9000 --no-browser
+      flocking play --dim 3 --neighbours topological
+    """
+    try:
+        import uvicorn
+
+        from ..play.server import create_app
+        from ..play.session import check_limits
+    except ImportError:
+        raise click.ClickException(EXTRA) from None
+    model = check_limits(Model(**initial_parameters(options)))
+    sock = listen(host, port)
+    address = sock.getsockname()
+    url = f"http://{_url_host(address[0])}:{address[1]}/"
+    click.echo(f"flocking play: {model} at {url} (Ctrl+C stops)", err=True)
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        click.echo("flocking play: listening beyond this machine; anyone who can reach it can run flocks here",
+                   err=True)
+    if not no_browser:
+        webbrowser.open(url)
+    from uvicorn.config import WS_PROTOCOLS
+
+    ws = "websockets-sansio" if "websockets-sansio" in WS_PROTOCOLS else "websockets"
+    config = uvicorn.Config(create_app(model), ws=ws, ws_max_size=65536, log_level="warning", lifespan="off")
+    uvicorn.Server(config).run(sockets=[sock])
+
+
+def initial_parameters(options: dict) -> dict:
+    """The model options given, over :data:`PLAY_DEFAULTS` (sizes only when none is given)."""
+    given = {k: v for k, v in options.items() if v is not None}
+    defaults = dict(PLAY_DEFAULTS)
+    if {"n", "density", "box"} & given.keys():
+        defaults.pop("n")
+        if "box" in given and "n" in given:
+            defaults.pop("density")
+    return {**defaults, **given}
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """A listening socket, or one clear line when the address is taken or not ours."""
+    try:
+        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0][0]
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen(64)
+    except OSError as err:
+        raise ParameterError(f"port: cannot listen on {host}:{port} ({err.strerror or err})") from None
+    return sock
+
+
+def _url_host(host: str) -> str:
+    if host in ("0.0.0.0", "::"):
+        return "127.0.0.1"
+    return f"[{host}]" if ":" in host else host

@@ -1,0 +1,197 @@
+// flocking play: the page. Controls send JSON messages; the server streams binary frames.
+import { decodeFrame } from "./frame.js";
+import { OrderPlot } from "./plot.js";
+import { Renderer, drawCompass } from "./render.js";
+
+const $ = (id) => document.getElementById(id);
+const flockCanvas = $("flock");
+const renderer = new Renderer(flockCanvas);
+const plot = new OrderPlot($("plot"));
+const NOISE_MAX = { angular: 2 * Math.PI, vectorial: 2 };
+
+// what tests and curious users can read in the console
+const stats = { frames: 0, fps: 0, drawMs: 0, step: 0, phi: 0, n: 0, dim: 2, running: true, errors: [], model: null };
+window.flockPlay = stats;
+
+let socket = null;
+let latest = null;       // the newest frame, drawn at the next animation frame
+let drawn = null;        // the frame on screen (redrawn when the 3D view turns)
+let lastStep = -1;
+let model = null;        // the model the server runs (from its "state" replies)
+
+// -- the socket ----------------------------------------------------------------------------
+
+function connect() {
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  socket = new WebSocket(`${scheme}://${location.host}/ws`);
+  socket.binaryType = "arraybuffer";
+  socket.onmessage = (event) => {
+    if (typeof event.data === "string") onReply(JSON.parse(event.data));
+    else onFrame(decodeFrame(event.data));
+  };
+  socket.onclose = () => {
+    say("Disconnected from the server. Start `flocking play` again and reload this page.", true);
+    $("readout").textContent = "disconnected";
+  };
+}
+
+function send(message) {
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(message));
+}
+
+function onFrame(frame) {
+  if (frame.step < lastStep || (model && (frame.n !== stats.n || frame.dim !== stats.dim))) plot.clear();
+  lastStep = frame.step;
+  latest = frame;
+  stats.frames++;
+  Object.assign(stats, { step: frame.step, phi: frame.phi, n: frame.n, dim: frame.dim, running: frame.running });
+  plot.push(frame.phi);
+}
+
+function onReply(reply) {
+  if (reply.type === "error") {
+    stats.errors.push(reply.message);
+    say(reply.message, true);
+  } else if (reply.type === "state") {
+    model = reply.model;
+    stats.model = model;
+    sync(reply);
+  } else if (reply.type === "config") {
+    download(new Blob([reply.toml], { type: "application/toml" }), reply.filename);
+    say(`Saved ${reply.filename}: run it with  flocking run --config ${reply.filename}`);
+  }
+}
+
+// -- drawing -------------------------------------------------------------------------------
+
+let frameCount = 0, since = performance.now();
+function animate(now) {
+  if (latest) {
+    const t0 = performance.now();
+    renderer.draw(latest);
+    stats.drawMs = 0.9 * stats.drawMs + 0.1 * (performance.now() - t0);
+    drawn = latest;
+    latest = null;
+    plot.draw();
+    frameCount++;
+  }
+  if (now - since >= 1000) {
+    stats.fps = (frameCount * 1000) / (now - since);
+    frameCount = 0;
+    since = now;
+  }
+  if (drawn) readout(drawn);
+  requestAnimationFrame(animate);
+}
+
+function readout(frame) {
+  const box = frame.box.slice(0, frame.dim).map((l) => l.toFixed(1)).join(" × ");
+  $("readout").textContent =
+    `step ${frame.step}   ·   φ = ${frame.phi.toFixed(3)}   ·   N = ${frame.n}   ·   box ${box}` +
+    `   ·   ${stats.fps.toFixed(0)} frames/s${frame.running ? "" : "   ·   paused"}`;
+}
+
+// -- controls ------------------------------------------------------------------------------
+
+let pending = {};
+let timer = null;
+function setParams(params) {          // coalesce slider drags: at most one message per 60 ms
+  Object.assign(pending, params);
+  if (timer === null) timer = setTimeout(() => { send({ type: "set", params: pending }); pending = {}; timer = null; }, 60);
+}
+
+function sliderValue(input) {
+  return input.step && Number.isInteger(Number(input.step)) ? parseInt(input.value, 10) : parseFloat(input.value);
+}
+
+function showValue(input) {
+  const out = document.querySelector(`output[for="${input.id}"]`);
+  if (out) out.textContent = Number.isInteger(Number(input.step)) ? input.value : Number(input.value).toFixed(2);
+}
+
+for (const input of document.querySelectorAll("input[data-param]")) {
+  input.addEventListener("input", () => { showValue(input); setParams({ [input.id]: sliderValue(input) }); });
+}
+
+$("density").addEventListener("input", () => showValue($("density")));
+$("density").addEventListener("change", () => setParams({ density: parseFloat($("density").value) }));
+$("n").addEventListener("change", () => {
+  const n = Number($("n").value);
+  if (Number.isInteger(n) && n >= 1) setParams({ n }); else say("N must be a whole number of at least 1", true);
+});
+$("seed").addEventListener("change", () => setParams({ seed: Number($("seed").value) }));
+$("steps_per_frame").addEventListener("input", () => {
+  showValue($("steps_per_frame"));
+  send({ type: "steps_per_frame", value: parseInt($("steps_per_frame").value, 10) });
+});
+
+for (const radio of document.querySelectorAll('input[type="radio"]')) {
+  radio.addEventListener("change", () => {
+    if (!radio.checked) return;
+    if (radio.name === "dim") setParams({ dim: Number(radio.value) });
+    else if (radio.name === "noise_type") {
+      const noise = Math.min(parseFloat($("noise").value), NOISE_MAX[radio.value]);
+      setParams({ noise_type: radio.value, noise });
+    } else setParams({ [radio.name]: radio.value });
+  });
+}
+
+$("play").addEventListener("click", () => send({ type: stats.running ? "pause" : "play" }));
+$("step").addEventListener("click", () => send({ type: "step" }));
+$("reset").addEventListener("click", () => { send({ type: "reset", init: $("init").value }); plot.clear(); });
+$("init").addEventListener("change", () => { send({ type: "reset", init: $("init").value }); plot.clear(); });
+$("export").addEventListener("click", () => send({ type: "config" }));
+$("snapshot").addEventListener("click", () => {
+  flockCanvas.toBlob((blob) => download(blob, `flocking-step-${stats.step}.png`), "image/png");
+});
+
+// show what the server really runs (it may have refused or adjusted a value)
+function sync(reply) {
+  const m = reply.model;
+  const active = document.activeElement;
+  const set = (id, value) => { const el = $(id); if (el !== active || !el.matches(":active")) { el.value = value; showValue(el); } };
+  $("noise").max = NOISE_MAX[m.noise_type];
+  for (const id of ["noise", "radius", "k", "speed", "alignment", "delay"]) set(id, m[id]);
+  set("density", Math.round(m.density * 10) / 10);
+  if ($("n") !== active) $("n").value = m.n;
+  if ($("seed") !== active) $("seed").value = m.seed;
+  $("n").max = reply.limits.n;
+  set("steps_per_frame", reply.steps_per_frame);
+  $("init").value = reply.init;
+  for (const name of ["noise_type", "neighbours", "dim"]) {
+    const radio = document.querySelector(`input[name="${name}"][value="${m[name]}"]`);
+    if (radio) radio.checked = true;
+  }
+  for (const el of document.querySelectorAll(".metric")) el.classList.toggle("hidden", m.neighbours !== "metric");
+  for (const el of document.querySelectorAll(".topological")) el.classList.toggle("hidden", m.neighbours !== "topological");
+  $("play").textContent = reply.running ? "Pause" : "Play";
+  stats.running = reply.running;
+  const three = m.dim === 3;
+  flockCanvas.parentElement.classList.toggle("three", three);
+  $("hint").hidden = !three;
+}
+
+let sayTimer = null;
+function say(text, error = false) {
+  const el = $("message");
+  el.textContent = text;
+  el.classList.toggle("error", error);
+  clearTimeout(sayTimer);
+  sayTimer = setTimeout(() => { el.textContent = ""; }, error ? 8000 : 6000);
+}
+
+function download(blob, name) {
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(blob);
+  a.download = name;
+  document.body.appendChild(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+}
+
+renderer.attachDrag(flockCanvas, () => { if (drawn && drawn.dim === 3) latest = latest || drawn; });
+drawCompass($("compass"));
+plot.draw();
+connect();
+requestAnimationFrame(animate);

@@ -1,0 +1,180 @@
+"""flocking play in a real browser: headless Chromium driven by Playwright.
+
+Needs Debian's ``chromium`` (``apt-get install -y chromium``) and ``pip install playwright``
+(no ``playwright install``: the system Chromium is used); skipped when either is missing.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+import tomllib
+
+import pytest
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+if not os.path.exists(CHROMIUM):
+    pytest.skip("no chromium here (apt-get install -y chromium)", allow_module_level=True)
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
+pytest.importorskip("starlette", reason="the play extra is not installed (pip install 'flocking[play]')")
+
+SRC = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, "src"))
+ENV = {**os.environ, "PYTHONPATH": SRC}
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run"]
+
+
+@pytest.fixture(scope="module")
+def url():
+    proc = subprocess.Popen([sys.executable, "-m", "flocking", "play", "--port", "0", "--no-browser",
+                             "--n", "2000", "--noise", "0.5"], env=ENV, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stderr.readline()
+        match = re.search(r"http://127\.0\.0\.1:\d+/", line)
+        assert match, line + proc.stderr.read()
+        yield match.group(0)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with sync_api.sync_playwright() as p:
+        try:
+            b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        except Exception as err:  # a chromium that cannot start here
+            pytest.skip(f"chromium does not start: {str(err).splitlines()[0]}")
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser, url):
+    # bypass_csp: Playwright polls string predicates with eval, which the page's CSP forbids
+    context = browser.new_context(viewport={"width": 1280, "height": 1000}, accept_downloads=True,
+                                  bypass_csp=True)
+    page = context.new_page()
+    errors = []
+    page.on("pageerror", lambda err: errors.append(str(err)))
+    page.goto(url)
+    page.wait_for_function("window.flockPlay && flockPlay.frames > 5", timeout=30_000)
+    yield page
+    context.close()
+    assert not errors, errors
+
+
+def lit_fraction(page) -> float:
+    """The fraction of canvas pixels that are not the background."""
+    return page.evaluate("""() => {
+        const c = document.getElementById('flock');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let lit = 0;
+        for (let o = 0; o < d.length; o += 4) if (d[o] !== 15 || d[o + 1] !== 20 || d[o + 2] !== 32) lit++;
+        return lit / (c.width * c.height);
+    }""")
+
+
+def test_page_draws_the_flock(page):
+    assert page.title() == "flocking play"
+    assert page.evaluate("flockPlay.n") == 2000
+    assert 0.01 < lit_fraction(page) < 0.9  # particles, not an empty or a blank canvas
+    assert re.search(r"step \d+ · φ = 0\.\d{3} · N = 2000", page.inner_text("#readout").replace("\u00a0", " ")
+                     .replace("   ", " "))
+
+
+def test_noise_slider_dissolves_the_flock(page):
+    page.select_option("#init", "aligned")  # a fresh, perfectly aligned flock
+    page.wait_for_function("flockPlay.model.noise === 0.5 && flockPlay.phi > 0.9")
+    page.focus("#noise")
+    page.keyboard.press("End")  # the slider to its maximum, as a keyboard user would
+    assert page.input_value("#noise") == "6.28"  # the last 0.01 step below 2 pi
+    page.wait_for_function("flockPlay.model.noise === 6.28", timeout=10_000)
+    # at eta ~ 2 pi headings are random: phi ~ 1/sqrt(N) ~ 0.02; 0.2 is 9 standard deviations
+    page.wait_for_function("flockPlay.phi < 0.2", timeout=30_000)
+    assert page.inner_text('output[for="noise"]') == "6.28"
+
+
+def test_export_config_runs_with_flocking_run(page, tmp_path):
+    page.check('input[name="neighbours"][value="topological"]')
+    page.wait_for_function("flockPlay.model.neighbours === 'topological'")
+    assert page.is_visible("#k") and not page.is_visible("#radius")
+    page.focus("#alignment")
+    page.keyboard.press("Home")
+    page.wait_for_function("flockPlay.model.alignment === 0")
+    with page.expect_download() as download:
+        page.click("#export")
+    path = tmp_path / download.value.suggested_filename
+    download.value.save_as(path)
+    config = tomllib.loads(path.read_text())
+    assert (config["neighbours"], config["alignment"], config["n"]) == ("topological", 0.0, 2000)
+    out = tmp_path / "run"
+    result = subprocess.run([sys.executable, "-m", "flocking", "run", "--config", str(path), "--steps", "5",
+                             "--out", str(out), "--quiet"], env=ENV, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert tomllib.loads((out / "config.toml").read_text())["neighbours"] == "topological"
+
+
+def test_snapshot_is_a_png(page, tmp_path):
+    with page.expect_download() as download:
+        page.click("#snapshot")
+    path = tmp_path / "snap.png"
+    download.value.save_as(path)
+    assert download.value.suggested_filename.startswith("flocking-step-")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 5000
+
+
+def test_pause_step_and_errors_are_shown(page):
+    page.click("#play")
+    page.wait_for_function("!flockPlay.running")
+    assert page.inner_text("#play") == "Play"
+    step = page.evaluate("flockPlay.step")
+    page.click("#step")
+    page.wait_for_function(f"flockPlay.step === {step + 1}")
+    time.sleep(0.3)
+    assert page.evaluate("flockPlay.step") == step + 1  # still paused
+    page.fill("#n", "300000")
+    page.press("#n", "Enter")
+    page.wait_for_function("flockPlay.errors.length > 0")
+    assert "n: must be at most 200000" in page.inner_text("#message")
+    assert page.evaluate("flockPlay.n") == 2000
+
+
+def test_three_dimensions_turn_with_the_mouse(page):
+    page.check('input[name="dim"][value="3"]')
+    page.wait_for_function("flockPlay.dim === 3 && flockPlay.n === 2000")
+    assert page.is_visible("#hint")
+    page.click("#play")  # pause, so that only the view changes
+    page.wait_for_function("!flockPlay.running")
+    time.sleep(0.3)
+    before = page.evaluate("document.getElementById('flock').toDataURL()")
+    assert lit_fraction(page) > 0.005
+    box = page.locator("#flock").bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.move(x + 120, y + 40, steps=8)
+    page.mouse.up()
+    page.wait_for_timeout(200)
+    after = page.evaluate("document.getElementById('flock').toDataURL()")
+    assert after != before and page.evaluate("flockPlay.step") == page.evaluate("flockPlay.step")
+
+
+def test_ten_thousand_particles_stream_at_30_frames_per_second(page):
+    page.fill("#n", "10000")
+    page.press("#n", "Enter")
+    page.wait_for_function("flockPlay.n === 10000", timeout=20_000)
+    page.wait_for_timeout(1000)
+    rates = []
+    for _ in range(2):  # the best of two 3-second windows: the machine is shared
+        frames, start = page.evaluate("[flockPlay.frames, performance.now()]")
+        page.wait_for_timeout(3000)
+        frames2, end = page.evaluate("[flockPlay.frames, performance.now()]")
+        rates.append((frames2 - frames) / (end - start) * 1000)
+    drawn = page.evaluate("flockPlay.fps")
+    print(f"10^4 particles, 2D: {max(rates):.1f} frames/s received, {drawn:.1f} drawn")
+    assert max(rates) >= 30
