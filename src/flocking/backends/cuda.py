@@ -39,7 +39,7 @@ from .cpu import cell_grid
 PRECISIONS = ("float64", "float32")
 
 #: Threads per block on a GPU, and under the simulator (one Python thread each).
-_BLOCK, _SIM_BLOCK = 256, 32
+_BLOCK, _SIM_BLOCK = 256, 16
 
 
 def _cuda():
