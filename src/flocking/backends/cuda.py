@@ -140,7 +140,7 @@ class CUDABackend:
         k, cuda, real = self._k, self._cuda, self._real
         box = np.asarray(self.model.box)
         pos = state.positions.astype(real)
-        pos = np.where(pos >= box.astype(real), real(0.0), pos)  # rounding may reach L
+        pos = np.where(pos >= box.astype(real), pos - box.astype(real), pos)  # rounding may reach L
         self._new_pos.copy_to_device(np.ascontiguousarray(pos.T))
         self._new_head.copy_to_device(np.ascontiguousarray(state.headings.T.astype(real)))
         self._spd2.copy_to_device(state.speeds.astype(real))
@@ -208,7 +208,8 @@ class CUDABackend:
         spd[ids] = self._spd.copy_to_host()
         if self.precision != "float64":
             head /= np.linalg.norm(head, axis=1, keepdims=True)
-            pos = np.where(pos >= np.asarray(self.model.box), 0.0, pos)
+            box = np.asarray(self.model.box)  # float32(L) may exceed L: fold back
+            pos = np.where(pos >= box, pos - box, pos)
         return State(pos, head, spd, self._step_count)
 
     def advance(self, steps: int) -> np.ndarray:
