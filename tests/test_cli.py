@@ -41,7 +41,7 @@ def test_default_like_run_writes_a_complete_folder(tmp_path):
         assert np.allclose(speed, 0.5, rtol=1e-6)
     traj = flocking.open(out / "trajectory.gsd")
     assert traj.model.n == 300 and traj.parameters["backend"] == "cpu"
-    assert traj.parameters["run"]["steps"] == 25
+    assert traj.parameters["run"]["every"] == 10
     lines = (out / "observables.csv").read_text().splitlines()
     assert lines[0] == "step,polar_order"
     assert len(lines) == 1 + 26

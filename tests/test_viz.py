@@ -187,7 +187,7 @@ def test_run_leaves_pictures_unless_no_plots(tmp_path, run_dir):
     r = CliRunner().invoke(main, ["run", "--n", "20", "--density", "1", "--steps", "4", "--backend", "reference",
                                   "--out", str(out), "--no-plots", "-q"])
     assert r.exit_code == 0 and not [p for p in os.listdir(out) if p.endswith(".png")]
-    assert sorted(os.listdir(out)) == ["config.toml", "observables.csv", "trajectory.gsd"]
+    assert sorted(os.listdir(out)) == ["checkpoint.npz", "config.toml", "observables.csv", "trajectory.gsd"]
 
 
 def test_run_movie_and_show_without_display(tmp_path, monkeypatch):

@@ -23,7 +23,8 @@ from . import backends
 from .model import MODEL_KEYS, Model, ParameterError, _integer, check_keys, dumps_toml, loads_toml
 from .state import State
 
-RUN_DEFAULTS = {"steps": 1000, "every": 10, "checkpoint_every": 1000, "init": "random", "backend": "cpu"}
+RUN_DEFAULTS = {"steps": 1000, "every": 10, "checkpoint_every": 1000, "init": "random", "backend": "cpu",
+                "precision": "float64"}
 RUN_KEYS = MODEL_KEYS + tuple(RUN_DEFAULTS)
 INITS = ("random", "aligned")
 
@@ -36,6 +37,7 @@ class RunConfig:
     checkpoint_every: int = RUN_DEFAULTS["checkpoint_every"]
     init: str = RUN_DEFAULTS["init"]
     backend: str = RUN_DEFAULTS["backend"]
+    precision: str = RUN_DEFAULTS["precision"]
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "steps", _integer("steps", self.steps, 0))
@@ -45,6 +47,10 @@ class RunConfig:
             raise ParameterError(f"init: must be 'random', 'aligned' or a .gsd file (got {self.init!r})")
         if self.init not in INITS and not os.path.isfile(self.init):
             raise ParameterError(f"init: must be 'random', 'aligned' or an existing .gsd file (got {self.init!r})")
+        if self.precision not in ("float64", "float32"):
+            raise ParameterError(f"precision: must be 'float64' or 'float32' (got {self.precision!r})")
+        if self.precision == "float32" and self.backend != "cuda":
+            raise ParameterError(f"precision: 'float32' needs the cuda backend (got backend {self.backend!r})")
         backends.get(self.backend)  # refuses unknown or unavailable backends
 
     @classmethod
@@ -90,7 +96,8 @@ class RunConfig:
     def to_dict(self) -> dict[str, Any]:
         init = self.init if self.init in INITS else os.path.abspath(self.init)
         return {**self.model.to_dict(), "steps": self.steps, "every": self.every,
-                "checkpoint_every": self.checkpoint_every, "init": init, "backend": self.backend}
+                "checkpoint_every": self.checkpoint_every, "init": init, "backend": self.backend,
+                "precision": self.precision}
 
     def to_toml(self) -> str:
         return "# flocking run configuration: flocking run --config THIS_FILE repeats the run\n" + dumps_toml(
@@ -104,6 +111,10 @@ class RunConfig:
             raise ParameterError(
                 f"n: {self.model.n} particles need about {need / 2**30:.3g} GiB with backend "
                 f"{self.backend!r}, more than the {available / 2**30:.3g} GiB available")
+
+    def backend_options(self) -> dict[str, Any]:
+        """Keyword arguments of the backend beyond the model (only what differs from defaults)."""
+        return {"precision": self.precision} if self.precision != "float64" else {}
 
     def initial_state(self) -> State:
         if self.init == "random":

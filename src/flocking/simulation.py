@@ -32,7 +32,8 @@ class Simulation:
     every step taken by this object (the initial state first). ``origin`` is the step the
     whole run started from: writers' periods count from it, also after a resume.
     ``memory`` restores what a backend remembers beyond the state (the delay history),
-    as saved in a checkpoint.
+    as saved in a checkpoint; other keywords go to the backend (``precision="float32"``
+    for ``cuda``).
 
     The loop of :meth:`run`, in order:
 
@@ -46,12 +47,13 @@ class Simulation:
     """
 
     def __init__(self, model: Model, state: State | None = None, backend: str = "cpu",
-                 memory: dict[str, np.ndarray] | None = None, origin: int | None = None):
+                 memory: dict[str, np.ndarray] | None = None, origin: int | None = None, **options: Any):
         self.model = model
         state = State.random(model) if state is None else state
         if state.n != model.n or state.dim != model.dim:
             raise ValueError("state: its particle count or dimension differs from the model's")
-        self.backend = backends.get(backend)(model, state, memory=memory)
+        self.backend = backends.get(backend)(model, state, memory=memory, **options)
+        self.backend_options = options
         self.writers: list = []
         self.polar_order: list[float] = [state.polar_order()]
         self.origin = state.step if origin is None else int(origin)
@@ -73,7 +75,8 @@ class Simulation:
 
     def parameters(self) -> dict[str, Any]:
         """What a file needs to describe this run: the model, the backend and ``info``."""
-        return {"model": self.model.to_dict(), "backend": self.backend.name, **self.info}
+        return {"model": self.model.to_dict(), "backend": self.backend.name,
+                "backend_options": self.backend_options, **self.info}
 
     def request_stop(self) -> None:
         """Stop the current run at the end of the step in progress (safe from a signal handler)."""
@@ -141,8 +144,9 @@ class Simulation:
         except (OSError, ValueError, KeyError, EOFError) as err:
             raise ParameterError(f"resume: cannot read the checkpoint {os.fspath(path)!r} ({err})") from None
         params = meta["parameters"]
-        sim = cls(Model.from_dict(params["model"]), state, params["backend"], memory=memory, origin=meta["origin"])
-        sim.info = {k: v for k, v in params.items() if k not in ("model", "backend")}
+        sim = cls(Model.from_dict(params["model"]), state, params["backend"], memory=memory, origin=meta["origin"],
+                  **params.get("backend_options", {}))
+        sim.info = {k: v for k, v in params.items() if k not in ("model", "backend", "backend_options")}
         return sim
 
 

@@ -64,7 +64,12 @@ class CUDABackend:
 
     name = "cuda"
 
-    def __init__(self, model: Model, state: State, precision: str = "float64"):
+    @staticmethod
+    def bytes_needed(model: Model) -> int:
+        """Host memory of a run (the device holds the rest): the id-ordered copies of the state."""
+        return model.n * (2 * model.dim + 1) * 8 * 3
+
+    def __init__(self, model: Model, state: State, memory: dict | None = None, precision: str = "float64"):
         if precision not in PRECISIONS:
             raise ParameterError(f"precision: must be 'float64' or 'float32' (got {precision!r})")
         if model.n >= 2**31:
@@ -131,11 +136,17 @@ class CUDABackend:
         delay = model.delay
         self._ring = dev((max(delay, 1), d + 1, n if delay else 1), real)
         self._step_count = state.step
-        self._load(state)
+        self._load(state, memory)
+
+    def memory(self) -> dict[str, np.ndarray]:
+        """The delay ring in the cpu backend's layout ``(delay, N, d + 1)``, indexed by id."""
+        if not self.model.delay:
+            return {}
+        return {"ring": np.ascontiguousarray(self._ring.copy_to_host().transpose(0, 2, 1), dtype=np.float64)}
 
     # -- device plumbing -------------------------------------------------------------
 
-    def _load(self, state: State) -> None:
+    def _load(self, state: State, memory: dict | None = None) -> None:
         """Upload ``state`` (id order) into the unsorted buffers, then sort into cell order."""
         k, cuda, real = self._k, self._cuda, self._real
         box = np.asarray(self.model.box)
@@ -148,7 +159,10 @@ class CUDABackend:
         k.cells[self._grid, self._block](self._new_pos, *self._geometry[:6], self._cell, self._counts)
         phi = cuda.device_array((1, state.dim), np.float64)
         self._sort(self._spd2, self._ids2, phi, 0)
-        if self.model.delay:
+        if memory:
+            ring = np.ascontiguousarray(np.asarray(memory["ring"]).transpose(0, 2, 1), dtype=self._real)
+            self._ring.copy_to_device(ring)
+        elif self.model.delay:
             self._prime_delay()
 
     def _prime_delay(self) -> None:
@@ -182,7 +196,7 @@ class CUDABackend:
             target = self._start[:-1] if level == 0 else self._levels[level - 1]
             k.add[self._levels[level].shape[0], block](target, self._levels[level])
         k.scatter[self._grid, block](self._cell, self._start, self._counts, self._order)
-        k.cell_sort[(self._ncells + block - 1) // block, block](self._start, self._order, self._ncells)
+        k.cell_sort[(self._ncells + block - 1) // block, block](self._start, self._order, ids, self._ncells)
         spd_out = self._spd2 if spd is self._spd else self._spd
         ids_out = self._ids2 if ids is self._ids else self._ids
         k.gather[self._grid, block](self._order, self._new_pos, self._new_head, spd, ids,

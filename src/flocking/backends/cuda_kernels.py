@@ -20,8 +20,8 @@ means metric neighbours. Kernels, in the order of a step:
     block totals, recursively);
 ``scatter`` / ``cell_sort``
     each particle into its cell's range by an atomic decrement, then each cell's range
-    sorted by old slot: together a *stable* counting sort, so the new order (and with it
-    every later sum) does not depend on thread scheduling;
+    sorted by particle id: the order (cell, then id) is a pure function of the state, as in
+    the cpu backend, so it depends neither on thread scheduling nor on restarts;
 ``gather``
     the particle arrays into cell order, with each block's heading sum;
 ``reduce``
@@ -431,8 +431,8 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
         order[start[c] + cuda.atomic.add(counts, c, -1) - 1] = i
 
     @cuda.jit
-    def cell_sort(start, order, ncells):
-        """Sort each cell's range by old slot (insertion sort: cells are small, and a
+    def cell_sort(start, order, ids, ncells):
+        """Sort each cell's range by particle id (insertion sort: cells are small, and a
         crowded cell only costs time, never correctness)."""
         c = cuda.grid(1)
         if c >= ncells:
@@ -440,8 +440,9 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
         lo, hi = start[c], start[c + 1]
         for a in range(lo + 1, hi):
             v = order[a]
+            key = ids[v]
             b = a
-            while b > lo and order[b - 1] > v:
+            while b > lo and ids[order[b - 1]] > key:
                 order[b] = order[b - 1]
                 b -= 1
             order[b] = v

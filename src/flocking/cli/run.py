@@ -68,6 +68,8 @@ def default_output_folder() -> str:
               help="A checkpoint every K steps (0: only at the end or on a stop). [default: 1000]")
 @click.option("--init", default=None, help="random, aligned, or a GSD file whose last frame starts the run.")
 @click.option("--backend", default=None, help="cpu (numba, default), reference (NumPy) or cuda.")
+@click.option("--precision", type=click.Choice(["float64", "float32"]), default=None,
+              help="Floating-point precision; float32 with --backend cuda only. [default: float64]")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
               help="A TOML file of parameters; options given here override it.")
 @click.option("--resume", "resume_dir", default=None,
@@ -100,7 +102,7 @@ def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, **opt
     state = cfg.initial_state()
     from ..simulation import Simulation
 
-    sim = Simulation(cfg.model, state, backend=cfg.backend)
+    sim = Simulation(cfg.model, state, backend=cfg.backend, **cfg.backend_options())
     execute(cfg, sim, out, quiet, show=show)
     pictures(out, no_plots, movie, quiet)
 
