@@ -44,8 +44,11 @@ def main() -> None:
 
 def _register() -> None:
     from .run import run
+    from .sweep import plot_sweep, sweep
 
     main.add_command(run)
+    main.add_command(sweep)
+    main.add_command(plot_sweep)
 
 
 _register()
