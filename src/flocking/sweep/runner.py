@@ -180,7 +180,7 @@ def _run_dask(tasks, store_record, bar, scheduler, workers, summary) -> None:
     cluster = None
     if scheduler is None:
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                               processes=True, host="127.0.0.1", dashboard_address=None,
+                               processes=True, host="127.0.0.1", dashboard_address=":0",
                                env={"NUMBA_NUM_THREADS": "1"})
         client = Client(cluster)
     else:
