@@ -47,8 +47,9 @@ def _register() -> None:
     from .animate import animate
     from .play import play
     from .run import run
+    from .sweep import plot_sweep, sweep
 
-    for command in (run, animate, analyze, play):
+    for command in (run, animate, analyze, sweep, plot_sweep, play):
         main.add_command(command)
 
 

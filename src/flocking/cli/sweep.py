@@ -1,0 +1,110 @@
+"""``flocking sweep`` and ``flocking plot-sweep``: phase diagrams from one sweep file."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+import click
+
+from ..model import ParameterError
+
+
+@click.command()
+@click.argument("sweep_file", metavar="SWEEP.toml", type=click.Path(dir_okay=False))
+@click.option("--out", default=None, help="Output folder. [default: the sweep file's name, here]")
+@click.option("--results", default=None,
+              help="Results file, .nc (netCDF) or .zarr. [default: OUT/results.nc]")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Address of a running Dask scheduler, e.g. tcp://10.0.0.1:8786. [default: a local cluster]")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Worker processes of the local cluster. [default: one per core]")
+@click.option("--serial", is_flag=True, help="Run the points one after another in this process, without Dask.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
+def sweep(sweep_file, out, results, scheduler, workers, serial, quiet):
+    """Run every point of a sweep file and gather the results into an xarray Dataset.
+
+    Each finished point is stored at once in OUT/points/<id>.json; running the same
+    command again computes only the points that are missing or failed.
+
+    \b
+    Examples:
+      flocking sweep examples/vicsek1995.toml --out vicsek
+      flocking sweep grid.toml --scheduler tcp://login1:8786
+      flocking sweep grid.toml --serial --results grid.zarr
+    """
+    from ..sweep import require
+    from ..sweep.spec import SweepSpec
+
+    if serial and (scheduler or workers):
+        raise ParameterError("serial: runs in this process; leave out --scheduler and --workers")
+    if scheduler and workers:
+        raise ParameterError("workers: sizes the local cluster; a --scheduler brings its own workers")
+    spec = SweepSpec.load(sweep_file)
+    out = out or os.path.splitext(os.path.basename(sweep_file))[0]
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ParameterError(f"out: {out!r} exists and is not a folder")
+    results = results or os.path.join(out, "results.nc")
+    from ..sweep.results import check_results_path, gather, save
+
+    check_results_path(results)
+    require("xarray", "netCDF4" if results.endswith(".nc") else "zarr", *(() if serial else ("dask", "distributed")))
+    from ..sweep.runner import PointStore, execute
+
+    say = (lambda text: None) if quiet else (lambda text: click.echo(text, err=True))
+    store = PointStore(out)
+    points = {p.id for p in spec.points()}
+    stored = sum(store.is_done(i) for i in points)
+    say(f"flocking sweep: {len(points)} runs ({stored} stored, {len(points) - stored} to run) -> {out}")
+    start = time.perf_counter()
+    try:
+        summary = execute(spec, out, serial=serial, scheduler=scheduler, workers=workers,
+                          progress=not quiet, report=lambda text: click.echo(text, err=True))
+    except KeyboardInterrupt:
+        done = sum(store.is_done(i) for i in points)
+        click.echo(f"flocking sweep: interrupted; {done} of {len(points)} runs stored in {out}; "
+                   f"run the same command again to resume", err=True)
+        sys.exit(130)
+    except OSError as err:
+        if scheduler:
+            raise ParameterError(f"scheduler: cannot reach {scheduler!r} ({err})") from None
+        raise
+    save(gather(spec, out), results)
+    elapsed = time.perf_counter() - start
+    say(f"flocking sweep: {summary['done']} run, {summary['failed']} failed, {summary['skipped']} already "
+        f"stored, in {elapsed:.1f} s on {summary['where']}; wrote {results}")
+    if summary["failed"]:
+        click.echo(f"flocking sweep: {summary['failed']} runs failed (recorded in {out}/points); "
+                   f"run the same command again to retry them", err=True)
+        sys.exit(1)
+
+
+@click.command("plot-sweep")
+@click.argument("results", metavar="RESULTS")
+@click.option("--x", "x", default=None, help="Swept parameter on the horizontal axis. "
+              "[default: the first that is not a system size]")
+@click.option("--out", default=None, help="PNG file. [default: RESULTS with .png]")
+def plot_sweep(results, x, out):
+    """Plot order, susceptibility and Binder cumulant of a sweep, one curve per system size.
+
+    RESULTS is a results file (.nc, .zarr) or a sweep output folder. Points are means over
+    replicas, error bars their standard errors.
+
+    \b
+    Examples:
+      flocking plot-sweep vicsek/results.nc
+      flocking plot-sweep vicsek --x noise --out fig2a.png
+    """
+    from ..sweep import require
+    from ..sweep.results import open_results, plot
+
+    require("xarray")
+    ds = open_results(results)
+    if out is None:
+        base = results.rstrip("/")
+        base = os.path.join(base, "results") if os.path.isdir(base) and not base.endswith(".zarr") else base
+        out = os.path.splitext(base)[0] + ".png"
+    if not out.endswith(".png"):
+        raise ParameterError(f"out: must be a .png file (got {out!r})")
+    click.echo(f"flocking plot-sweep: wrote {plot(ds, out, x)}", err=True)
