@@ -18,7 +18,11 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name: str):
-    # plotting imports matplotlib: only when asked for
+    # submodules with heavy dependencies (matplotlib, dask, ...) load when first used
+    if name in ("analysis", "viz", "sweep"):
+        import importlib
+
+        return importlib.import_module(f"{__name__}.{name}")
     if name in ("plot_frame", "animate"):
         from . import viz
 

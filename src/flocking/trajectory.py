@@ -140,8 +140,20 @@ def _frame(f: gsd.hoomd.Frame) -> Frame:
     box = np.asarray(f.configuration.box, dtype=np.float64)
     n = int(f.particles.N)
     points = np.zeros((n, 3), np.float32) if f.particles.position is None else f.particles.position
-    velocities = np.zeros((n, 3), np.float32) if f.particles.velocity is None else f.particles.velocity
+    velocities = f.particles.velocity
+    if velocities is None or not np.any(velocities):
+        # HOOMD active-matter files often carry orientations and no velocities: the
+        # heading is the body x axis, rotated by the quaternion (w, x, y, z)
+        q = f.particles.orientation
+        velocities = np.zeros((n, 3), np.float32) if q is None else _body_x_axis(q)
     return Frame(f.configuration.step, dim, box[:3], points, velocities)
+
+
+def _body_x_axis(q: np.ndarray) -> np.ndarray:
+    """The image of (1, 0, 0) under each unit quaternion ``(w, x, y, z)``."""
+    q = np.asarray(q, dtype=np.float64)
+    w, x, y, z = q.T
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=1).astype(np.float32)
 
 
 def open(path: str | os.PathLike) -> Trajectory:  # noqa: A001 - mirrors gsd.hoomd.open

@@ -29,9 +29,17 @@ class Main(click.Group):
 
 
 def option_name(message: str) -> str:
-    """``noise_type: ...`` -> ``--noise-type: ...``, so errors name the option as typed."""
+    """``noise_type: ...`` -> ``--noise-type: ...``: errors about a parameter name its option.
+
+    >>> option_name("noise_type: must be one of 'angular', 'vectorial'")
+    "--noise-type: must be one of 'angular', 'vectorial'"
+    >>> option_name("nosie: unknown parameter")
+    'nosie: unknown parameter'
+    """
+    from ..config import RUN_KEYS
+
     key, sep, rest = message.partition(": ")
-    if sep and key.replace("_", "").isalnum() and " " not in key:
+    if sep and (key in RUN_KEYS or key in ("config", "out", "resume")):
         return f"--{key.replace('_', '-')}: {rest}"
     return message
 
