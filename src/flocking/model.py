@@ -247,7 +247,8 @@ def check_keys(data: dict[str, Any], allowed: tuple[str, ...]) -> None:
         if key not in allowed:
             close = difflib.get_close_matches(str(key), allowed, n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise ParameterError(f"{key}: unknown parameter{hint}")
+            name = key if str(key).isidentifier() else repr(key)  # keep the message on one line
+            raise ParameterError(f"{name}: unknown parameter{hint}")
 
 
 # -- TOML ------------------------------------------------------------------------------

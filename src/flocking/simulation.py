@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import array
 import json
 import os
 from typing import Any
@@ -29,7 +30,8 @@ class Simulation:
 
     ``state`` defaults to :meth:`State.random`. ``writers`` is a plain list of
     :class:`~flocking.writers.Writer` objects. ``polar_order`` holds the polar order of
-    every step taken by this object (the initial state first). ``origin`` is the step the
+    every step taken by this object (the initial state first), 8 bytes a step; with
+    ``history=False`` it holds only the latest value, for runs of any length. ``origin`` is the step the
     whole run started from: writers' periods count from it, also after a resume.
     ``memory`` restores what a backend remembers beyond the state (the delay history),
     as saved in a checkpoint; other keywords go to the backend (``precision="float32"``
@@ -47,7 +49,8 @@ class Simulation:
     """
 
     def __init__(self, model: Model, state: State | None = None, backend: str = "cpu",
-                 memory: dict[str, np.ndarray] | None = None, origin: int | None = None, **options: Any):
+                 memory: dict[str, np.ndarray] | None = None, origin: int | None = None,
+                 history: bool = True, **options: Any):
         self.model = model
         state = State.random(model) if state is None else state
         if state.n != model.n or state.dim != model.dim:
@@ -55,7 +58,8 @@ class Simulation:
         self.backend = backends.get(backend)(model, state, memory=memory, **options)
         self.backend_options = options
         self.writers: list = []
-        self.polar_order: list[float] = [state.polar_order()]
+        self.polar_order = array.array("d", [state.polar_order()])
+        self.history = history
         self.origin = state.step if origin is None else int(origin)
         self.info: dict[str, Any] = {}
         self._stop = False
@@ -101,7 +105,10 @@ class Simulation:
             while step < last and not self._stop:
                 target = min(last, step + chunk, *(_next_due(w, step, self.origin, last) for w in self.writers))
                 phi = self.backend.advance(target - step)
-                self.polar_order.extend(phi.tolist())
+                if self.history:
+                    self.polar_order.extend(phi)
+                else:
+                    self.polar_order[0] = phi[-1]
                 done = np.arange(step + 1, target + 1)
                 step = target
                 for w in self.writers:
@@ -139,7 +146,7 @@ class Simulation:
             raise
 
     @classmethod
-    def load_checkpoint(cls, path: str | os.PathLike) -> Simulation:
+    def load_checkpoint(cls, path: str | os.PathLike, history: bool = True) -> Simulation:
         """The simulation saved by :meth:`save_checkpoint` (writers are not saved)."""
         try:
             with np.load(os.fspath(path)) as data:
@@ -150,7 +157,7 @@ class Simulation:
             raise ParameterError(f"resume: cannot read the checkpoint {os.fspath(path)!r} ({err})") from None
         params = meta["parameters"]
         sim = cls(Model.from_dict(params["model"]), state, params["backend"], memory=memory, origin=meta["origin"],
-                  **params.get("backend_options", {}))
+                  history=history, **params.get("backend_options", {}))
         sim.info = {k: v for k, v in params.items() if k not in ("model", "backend", "backend_options")}
         return sim
 

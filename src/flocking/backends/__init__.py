@@ -26,7 +26,7 @@ NAMES = {
 
 def get(name: str):
     """The backend class called ``name``."""
-    if name not in NAMES:
+    if not isinstance(name, str) or name not in NAMES:
         raise ParameterError(f"backend: must be one of {', '.join(map(repr, NAMES))} (got {name!r})")
     module, cls = NAMES[name]
     try:

@@ -102,7 +102,7 @@ def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, **opt
     state = cfg.initial_state()
     from ..simulation import Simulation
 
-    sim = Simulation(cfg.model, state, backend=cfg.backend, **cfg.backend_options())
+    sim = Simulation(cfg.model, state, backend=cfg.backend, history=False, **cfg.backend_options())
     execute(cfg, sim, out, quiet, show=show)
     pictures(out, no_plots, movie, quiet)
 
@@ -137,7 +137,7 @@ def resume(folder: str, config_file, out, quiet: bool, options: dict, show: bool
     checkpoint = os.path.join(folder, "checkpoint.npz")
     if not os.path.isfile(checkpoint):
         raise ParameterError(f"resume: {folder!r} has no checkpoint.npz to continue from")
-    sim = Simulation.load_checkpoint(checkpoint)
+    sim = Simulation.load_checkpoint(checkpoint, history=False)
     if sim.model != cfg.model:
         raise ParameterError(f"resume: the checkpoint of {folder!r} does not belong to its config.toml")
     remaining = sim.origin + cfg.steps - sim.step
