@@ -217,7 +217,7 @@ def test_cli_analyze_everything(run_dir):
                  "cluster_sizes", "box_counting", "msd"):
         assert (run_dir / f"{stem}.csv").stat().st_size > 0
         assert (run_dir / f"{stem}.png").read_bytes()[:4] == b"\x89PNG"
-    rows = (run_dir / "polar_order.csv").read_text().splitlines()
+    rows = (run_dir / "polar_order_window.csv").read_text().splitlines()
     assert rows[0] == "step,polar_order,in_window" and len(rows) == 62
     assert data["polar"]["samples"] == 41
     assert data["msd"]["lags"][0] == 5

@@ -14,7 +14,7 @@ QUANTITIES = ("polar", "fluctuations", "correlation", "profile", "clusters", "bo
 
 #: quantity -> (CSV/PNG file stem, CSV columns as (header, attribute))
 OUTPUTS = {
-    "polar": ("polar_order", [("step", "steps"), ("polar_order", "series"), ("in_window", "window")]),
+    "polar": ("polar_order_window", [("step", "steps"), ("polar_order", "series"), ("in_window", "window")]),
     "fluctuations": ("number_fluctuations", [("side", "sizes"), ("mean_n", "mean"), ("dn", "std"),
                                              ("fitted", "fitted")]),
     "correlation": ("velocity_correlation", [("r", "r"), ("C", "correlation"), ("pairs", "pairs")]),
