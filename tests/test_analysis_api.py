@@ -213,7 +213,7 @@ def test_cli_analyze_everything(run_dir):
         assert key in data
     assert data["clusters"]["radius_used"] == 1.5
     assert data["model"]["n"] == 800
-    for stem in ("polar_order", "number_fluctuations", "velocity_correlation", "density_profile",
+    for stem in ("polar_order_window", "number_fluctuations", "velocity_correlation", "density_profile",
                  "cluster_sizes", "box_counting", "msd"):
         assert (run_dir / f"{stem}.csv").stat().st_size > 0
         assert (run_dir / f"{stem}.png").read_bytes()[:4] == b"\x89PNG"

@@ -21,15 +21,18 @@ class Main(click.Group):
         try:
             return super().invoke(ctx)
         except ParameterError as err:
-            click.echo(f"Error: {option_name(str(err))}", err=True)
+            command = self.get_command(ctx, ctx.invoked_subcommand or "")
+            names = {p.name for p in command.params} if command else set()
+            click.echo(f"Error: {option_name(str(err), names)}", err=True)
             ctx.exit(2)
         except OSError as err:
             click.echo(f"Error: {err.strerror or err}: {err.filename or ''}".rstrip(": "), err=True)
             ctx.exit(1)
 
 
-def option_name(message: str) -> str:
-    """``noise_type: ...`` -> ``--noise-type: ...``: errors about a parameter name its option.
+def option_name(message: str, options: set[str] = frozenset()) -> str:
+    """``noise_type: ...`` -> ``--noise-type: ...``: an error about a parameter names the
+    option (of the running command, or of ``flocking run``) that sets it.
 
     >>> option_name("noise_type: must be one of 'angular', 'vectorial'")
     "--noise-type: must be one of 'angular', 'vectorial'"
@@ -39,7 +42,7 @@ def option_name(message: str) -> str:
     from ..config import RUN_KEYS
 
     key, sep, rest = message.partition(": ")
-    if sep and (key in RUN_KEYS or key in ("config", "out", "resume")):
+    if sep and (key in options or key in RUN_KEYS or key in ("config", "out", "resume")):
         return f"--{key.replace('_', '-')}: {rest}"
     return message
 
