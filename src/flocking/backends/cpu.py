@@ -153,40 +153,6 @@ def _scatter(cell, hist, pos, head, spd, ids, pos2, head2, spd2, ids2):
 # -- neighbour sums -------------------------------------------------------------------
 
 
-@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
-def _range_2d(x, y, hx, hy, lo, hi, xi, yi, shx, shy, r2):
-    """Headings and count of the slots ``lo..hi`` within ``R``, a periodic shift given."""
-    sx = 0.0
-    sy = 0.0
-    n = 0
-    for j in range(lo, hi):
-        dx = (x[j] - xi) + shx
-        dy = (y[j] - yi) + shy
-        inside = dx * dx + dy * dy < r2
-        sx += hx[j] if inside else 0.0
-        sy += hy[j] if inside else 0.0
-        n += 1 if inside else 0
-    return sx, sy, n
-
-
-@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
-def _range_3d(x, y, z, hx, hy, hz, lo, hi, xi, yi, zi, shx, shy, shz, r2):
-    sx = 0.0
-    sy = 0.0
-    sz = 0.0
-    n = 0
-    for j in range(lo, hi):
-        dx = (x[j] - xi) + shx
-        dy = (y[j] - yi) + shy
-        dz = (z[j] - zi) + shz
-        inside = dx * dx + dy * dy + dz * dz < r2
-        sx += hx[j] if inside else 0.0
-        sy += hy[j] if inside else 0.0
-        sz += hz[j] if inside else 0.0
-        n += 1 if inside else 0
-    return sx, sy, sz, n
-
-
 @numba.njit(cache=True, inline="always")
 def _neighbour_row(g, n, length):
     """Row/plane ``g`` folded into ``0..n-1`` and the shift to add to a displacement."""
@@ -208,52 +174,94 @@ def _x_ranges(row0, cx, nx, start, lx):
     return (start[row0 + cx - 1], start[row0 + cx + 2], 0.0, 0, 0, 0.0)
 
 
-@numba.njit(cache=True, inline="always")
-def _cell_sums_2d(i, c, pos, head, start, nc, box, r2):
-    """Sum of headings (self included) and count within ``R`` of slot ``i`` in cell ``c``."""
+@numba.njit(cache=True)
+def _candidates(c, start, nc, d):
+    """Number of particles in the 3^d cells around cell ``c`` (fast grids only)."""
     nx, ny = nc[0], nc[1]
     cx = c % nx
-    cy = c // nx
-    x, y, hx, hy = pos[0], pos[1], head[0], head[1]
-    xi, yi = x[i], y[i]
-    sx = 0.0
-    sy = 0.0
-    count = 0
-    for oy in range(-1, 2):
-        gy, shy = _neighbour_row(cy + oy, ny, box[1])
-        lo, hi, shx, lo2, hi2, shx2 = _x_ranges(gy * nx, cx, nx, start, box[0])
-        ax, ay, an = _range_2d(x, y, hx, hy, lo, hi, xi, yi, shx, shy, r2)
-        bx, by, bn = _range_2d(x, y, hx, hy, lo2, hi2, xi, yi, shx2, shy, r2)
-        sx += ax + bx
-        sy += ay + by
-        count += an + bn
-    return sx, sy, count
+    cy = (c // nx) % ny
+    cz = c // (nx * ny) if d == 3 else 0
+    m = 0
+    for oz in range(-1 if d == 3 else 0, 2 if d == 3 else 1):
+        gz = (cz + oz) % nc[d - 1]
+        for oy in range(-1, 2):
+            gy = (cy + oy) % ny
+            lo, hi, _, lo2, hi2, _ = _x_ranges((gz * ny + gy) * nx, cx, nx, start, 0.0)
+            m += (hi - lo) + (hi2 - lo2)
+    return m
 
 
 @numba.njit(cache=True, inline="always")
-def _cell_sums_3d(i, c, pos, head, start, nc, box, r2):
-    nx, ny, nz = nc[0], nc[1], nc[2]
+def _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d):
+    """Append slots ``lo..hi`` to the candidate buffer, periodic shift applied."""
+    for j in range(lo, hi):
+        buf[0, m] = x[j] + shx
+        buf[1, m] = y[j] + shy
+        buf[d, m] = hx[j]
+        buf[d + 1, m] = hy[j]
+        if d == 3:
+            buf[2, m] = z[j] + shz
+            buf[5, m] = hz[j]
+        m += 1
+    return m
+
+
+@numba.njit(cache=True)
+def _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d):
+    """The particles of the 3^d cells around cell ``c`` into ``buf`` (coordinates rows
+    ``0..d-1``, headings rows ``d..2d-1``), shifted to the periodic image nearest ``c``:
+    then one branch-free loop over a contiguous buffer serves every particle of ``c``."""
+    nx, ny = nc[0], nc[1]
     cx = c % nx
     cy = (c // nx) % ny
-    cz = c // (nx * ny)
-    x, y, z, hx, hy, hz = pos[0], pos[1], pos[2], head[0], head[1], head[2]
-    xi, yi, zi = x[i], y[i], z[i]
-    sx = 0.0
-    sy = 0.0
-    sz = 0.0
-    count = 0
-    for oz in range(-1, 2):
-        gz, shz = _neighbour_row(cz + oz, nz, box[2])
+    cz = c // (nx * ny) if d == 3 else 0
+    m = 0
+    for oz in range(-1 if d == 3 else 0, 2 if d == 3 else 1):
+        gz, shz = _neighbour_row(cz + oz, nc[d - 1], box[d - 1])
         for oy in range(-1, 2):
             gy, shy = _neighbour_row(cy + oy, ny, box[1])
             lo, hi, shx, lo2, hi2, shx2 = _x_ranges((gz * ny + gy) * nx, cx, nx, start, box[0])
-            ax, ay, az, an = _range_3d(x, y, z, hx, hy, hz, lo, hi, xi, yi, zi, shx, shy, shz, r2)
-            bx, by, bz, bn = _range_3d(x, y, z, hx, hy, hz, lo2, hi2, xi, yi, zi, shx2, shy, shz, r2)
-            sx += ax + bx
-            sy += ay + by
-            sz += az + bz
-            count += an + bn
-    return sx, sy, sz, count
+            m = _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d)
+            m = _copy(x, y, z, hx, hy, hz, lo2, hi2, shx2, shy, shz, buf, m, d)
+    return m
+
+
+@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
+def _reduce_2d(bx, by, bhx, bhy, m, xi, yi, r2):
+    """Sum of headings and count of the buffered candidates within ``R`` (self included).
+
+    ``reassoc`` lets the sums vectorise: their order then depends on the vector width of
+    the machine, never on the thread count.
+    """
+    sx = 0.0
+    sy = 0.0
+    n = 0.0
+    for j in range(m):
+        dx = bx[j] - xi
+        dy = by[j] - yi
+        w = 1.0 if dx * dx + dy * dy < r2 else 0.0
+        sx += bhx[j] * w
+        sy += bhy[j] * w
+        n += w
+    return sx, sy, n
+
+
+@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
+def _reduce_3d(bx, by, bz, bhx, bhy, bhz, m, xi, yi, zi, r2):
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    n = 0.0
+    for j in range(m):
+        dx = bx[j] - xi
+        dy = by[j] - yi
+        dz = bz[j] - zi
+        w = 1.0 if dx * dx + dy * dy + dz * dz < r2 else 0.0
+        sx += bhx[j] * w
+        sy += bhy[j] * w
+        sz += bhz[j] * w
+        n += w
+    return sx, sy, sz, n
 
 
 @numba.njit(cache=True, inline="always")
@@ -394,6 +402,13 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
         best_d2 = np.empty(max(k, 1))
         best_id = np.empty(max(k, 1), dtype=np.int64)
         best_slot = np.empty(max(k, 1), dtype=np.int64)
+        # views taken once per thread: a view in the hot loop costs an atomic refcount
+        x, y, z = pos[0], pos[1], pos[d - 1]
+        hx, hy, hz = head[0], head[1], head[d - 1]
+        cap = 64
+        buf = np.empty((2 * d, cap))
+        bx, by, bz, bhx, bhy, bhz = buf[0], buf[1], buf[d - 1], buf[d], buf[d + 1], buf[2 * d - 1]
+        m = 0
         for b in range(t, nblocks, nt):  # round-robin blocks: balanced when particles cluster
             s0 = b * _BLOCK
             s1 = min(n, s0 + _BLOCK)
@@ -402,13 +417,21 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
             py = 0.0
             pz = 0.0
             while c < ncells and start[c] < s1:
-                for i in range(max(start[c], s0), min(start[c + 1], s1)):
+                i0, i1 = max(start[c], s0), min(start[c + 1], s1)
+                if mode == 0 and i0 < i1:
+                    need = _candidates(c, start, nc, d)
+                    if need > cap:
+                        cap = 2 * need
+                        buf = np.empty((2 * d, cap))
+                        bx, by, bz, bhx, bhy, bhz = buf[0], buf[1], buf[d - 1], buf[d], buf[d + 1], buf[2 * d - 1]
+                    m = _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d)
+                for i in range(i0, i1):
                     sz = 0.0
                     if mode == 0:
                         if d == 2:
-                            sx, sy, count = _cell_sums_2d(i, c, pos, head, start, nc, box, r2)
+                            sx, sy, count = _reduce_2d(bx, by, bhx, bhy, m, x[i], y[i], r2)
                         else:
-                            sx, sy, sz, count = _cell_sums_3d(i, c, pos, head, start, nc, box, r2)
+                            sx, sy, sz, count = _reduce_3d(bx, by, bz, bhx, bhy, bhz, m, x[i], y[i], z[i], r2)
                     elif mode == 1:
                         sx, sy, sz, count = _generic_sums(i, c, pos, head, start, nc, box, half, r2)
                     else:
