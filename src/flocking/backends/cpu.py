@@ -227,41 +227,54 @@ def _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d):
 
 
 @numba.njit(cache=True, fastmath={"reassoc", "nsz"})
-def _reduce_2d(bx, by, bhx, bhy, m, xi, yi, r2):
-    """Sum of headings and count of the buffered candidates within ``R`` (self included).
+def _reduce_2d(buf, m, x, y, i0, i1, r2, out):
+    """For slots ``i0..i1``: sum of headings and count of the buffered candidates within
+    ``R`` (self included) into ``out[:, i - i0]``.
 
     ``reassoc`` lets the sums vectorise: their order then depends on the vector width of
     the machine, never on the thread count.
     """
-    sx = 0.0
-    sy = 0.0
-    n = 0.0
-    for j in range(m):
-        dx = bx[j] - xi
-        dy = by[j] - yi
-        w = 1.0 if dx * dx + dy * dy < r2 else 0.0
-        sx += bhx[j] * w
-        sy += bhy[j] * w
-        n += w
-    return sx, sy, n
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        sx = 0.0
+        sy = 0.0
+        n = 0.0
+        for j in range(m):
+            dx = buf[0, j] - xi
+            dy = buf[1, j] - yi
+            w = 1.0 if dx * dx + dy * dy < r2 else 0.0
+            sx += buf[2, j] * w
+            sy += buf[3, j] * w
+            n += w
+        out[0, i - i0] = sx
+        out[1, i - i0] = sy
+        out[2, i - i0] = n
 
 
 @numba.njit(cache=True, fastmath={"reassoc", "nsz"})
-def _reduce_3d(bx, by, bz, bhx, bhy, bhz, m, xi, yi, zi, r2):
-    sx = 0.0
-    sy = 0.0
-    sz = 0.0
-    n = 0.0
-    for j in range(m):
-        dx = bx[j] - xi
-        dy = by[j] - yi
-        dz = bz[j] - zi
-        w = 1.0 if dx * dx + dy * dy + dz * dz < r2 else 0.0
-        sx += bhx[j] * w
-        sy += bhy[j] * w
-        sz += bhz[j] * w
-        n += w
-    return sx, sy, sz, n
+def _reduce_3d(buf, m, x, y, z, i0, i1, r2, out):
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        zi = z[i]
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        n = 0.0
+        for j in range(m):
+            dx = buf[0, j] - xi
+            dy = buf[1, j] - yi
+            dz = buf[2, j] - zi
+            w = 1.0 if dx * dx + dy * dy + dz * dz < r2 else 0.0
+            sx += buf[3, j] * w
+            sy += buf[4, j] * w
+            sz += buf[5, j] * w
+            n += w
+        out[0, i - i0] = sx
+        out[1, i - i0] = sy
+        out[2, i - i0] = sz
+        out[3, i - i0] = n
 
 
 @numba.njit(cache=True, inline="always")
@@ -407,8 +420,8 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
         hx, hy, hz = head[0], head[1], head[d - 1]
         cap = 64
         buf = np.empty((2 * d, cap))
-        bx, by, bz, bhx, bhy, bhz = buf[0], buf[1], buf[d - 1], buf[d], buf[d + 1], buf[2 * d - 1]
-        m = 0
+        ocap = 16
+        out = np.empty((d + 1, ocap))
         for b in range(t, nblocks, nt):  # round-robin blocks: balanced when particles cluster
             s0 = b * _BLOCK
             s1 = min(n, s0 + _BLOCK)
@@ -423,15 +436,20 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
                     if need > cap:
                         cap = 2 * need
                         buf = np.empty((2 * d, cap))
-                        bx, by, bz, bhx, bhy, bhz = buf[0], buf[1], buf[d - 1], buf[d], buf[d + 1], buf[2 * d - 1]
+                    if i1 - i0 > ocap:
+                        ocap = 2 * (i1 - i0)
+                        out = np.empty((d + 1, ocap))
                     m = _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d)
+                    if d == 2:
+                        _reduce_2d(buf, m, x, y, i0, i1, r2, out)
+                    else:
+                        _reduce_3d(buf, m, x, y, z, i0, i1, r2, out)
                 for i in range(i0, i1):
                     sz = 0.0
                     if mode == 0:
-                        if d == 2:
-                            sx, sy, count = _reduce_2d(bx, by, bhx, bhy, m, x[i], y[i], r2)
-                        else:
-                            sx, sy, sz, count = _reduce_3d(bx, by, bz, bhx, bhy, bhz, m, x[i], y[i], z[i], r2)
+                        sx, sy, count = out[0, i - i0], out[1, i - i0], out[d, i - i0]
+                        if d == 3:
+                            sz = out[2, i - i0]
                     elif mode == 1:
                         sx, sy, sz, count = _generic_sums(i, c, pos, head, start, nc, box, half, r2)
                     else:
