@@ -38,13 +38,19 @@ it, indexed by particle id, and replaces a second neighbour search.
 from __future__ import annotations
 
 import math
+import os
 
-import numba
-import numpy as np
+# Idle OpenMP threads sleep instead of spinning between the several parallel loops of a
+# step: on a machine shared with other work, spinning costs the scheduler's fair share and
+# halved throughput in our measurements (docs/performance.md). Set it to override.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
 
 from ..model import Model
-from ..state import State
-from .kernels import minimum_image, update_2d, update_3d, wrap
+from ..state import State  # noqa: E402
+from .kernels import minimum_image, update_2d, update_3d, wrap  # noqa: E402
 
 _BLOCK = 512  # slots per block of the parallel loops; fixed, so results do not depend on threads
 _SCAN = 4096  # cells per block of the parallel prefix sum

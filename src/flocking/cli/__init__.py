@@ -46,6 +46,9 @@ def _register() -> None:
     from .run import run
 
     main.add_command(run)
+    from .bench import bench
+
+    main.add_command(bench)
 
 
 _register()
