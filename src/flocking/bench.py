@@ -11,8 +11,8 @@ CPU backend and, side by side in the same process, on the references that can ru
 Throughput is particle-steps per second: ``N * steps / time``, the median over
 ``repeats`` timed runs after a warm-up. Ratios are taken within the same run, so they
 hold on a busy machine where absolute numbers do not. Peak memory comes from a separate
-process per size (:func:`memory_probe`): the peak resident memory of a run that writes a
-GSD frame every 100 steps, less the interpreter's own, per particle.
+process per size (:func:`memory_probe`): the peak of all NumPy allocations of a run that
+writes a GSD frame every 100 steps, per particle.
 
 Initial states: ``random`` (measured after ``warmup`` steps: clusters and bands start to
 form), ``aligned`` (all headings along x, homogeneous) and ``clustered``: a run of about
@@ -38,7 +38,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -197,43 +197,52 @@ def _runner_pyvicsek(model: Model, state: State, threads: int):
     return advance
 
 
-def _time(advance: Callable[[int], Any], steps: int, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        advance(steps)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
-
-
 def run_case(case: Case, refs: Path | None, repeats: int, long_steps: int, log=print) -> list[dict]:
-    """Time one case on ``flocking`` and its references; one result row each."""
+    """Time one case on ``flocking`` and its references; one result row each.
+
+    The implementations are timed in turn within each repeat, so a change in the load
+    of the machine hits all of them alike; the median over repeats is kept, with the
+    process CPU time per particle-step beside the wall-clock throughput.
+    """
     import numba
 
     threads = case.threads or numba.config.NUMBA_NUM_THREADS
     numba.set_num_threads(threads)
     model = case.build_model()
     state = initial_state(case, model, long_steps)
-    rows = []
-    impls = [("flocking", lambda m, s: _runner_flocking(m, s, threads))]
+    makers = {"flocking": lambda: _runner_flocking(model, state, threads)}
     if "kdtree" in case.refs:
-        impls.append(("kdtree", (lambda m, s: _runner_kdtree(m, s, threads, refs)) if refs else None))
+        makers["kdtree"] = (lambda: _runner_kdtree(model, state, threads, refs)) if refs else None
     if "pyvicsek" in case.refs:
-        impls.append(("pyvicsek", lambda m, s: _runner_pyvicsek(m, s, threads)))
-    for name, make in impls:
+        makers["pyvicsek"] = lambda: _runner_pyvicsek(model, state, threads)
+    rows, runners = [], {}
+    for name, make in makers.items():
         row = dict(group=case.group, case=case.label, init=case.init, n=model.n, dim=model.dim,
                    implementation=name, threads=threads, steps=case.steps, repeats=repeats)
-        advance = make(model, state) if make else None
+        advance = make() if make else None
         if advance is None:
-            row["note"] = "not available here" if name == "pyvicsek" else "no benchmarks/ folder (use --refs)"
-            rows.append(row)
-            continue
-        advance(case.warmup)  # compiles once, lets a random start form clusters
-        seconds = _time(advance, case.steps, repeats)
-        row["seconds_per_step"] = seconds / case.steps
-        row["particle_steps_per_s"] = model.n * case.steps / seconds
+            row["note"] = "not installed" if name == "pyvicsek" else "no benchmarks/ folder (use --refs)"
+        else:
+            # compiles once and lets a random start form clusters (the references need no
+            # compiling: one step, so that a slow one does not take minutes here)
+            advance(case.warmup if name == "flocking" else 1)
+            runners[name] = advance
         rows.append(row)
-        del advance
+    wall = {name: [] for name in runners}
+    cpu = {name: [] for name in runners}
+    for _ in range(repeats):
+        for name, advance in runners.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            advance(case.steps)
+            wall[name].append(time.perf_counter() - t0)
+            cpu[name].append(time.process_time() - c0)
+    for row in rows:
+        name = row["implementation"]
+        if name in runners:
+            seconds = float(np.median(wall[name]))
+            row["seconds_per_step"] = seconds / case.steps
+            row["particle_steps_per_s"] = model.n * case.steps / seconds
+            row["cpu_ns_per_particle_step"] = float(np.median(cpu[name])) * 1e9 / (model.n * case.steps)
     if case.init == "clustered":
         c = crowding(state.positions, model.box, model.radius)
         for row in rows:
@@ -252,32 +261,32 @@ def format_row(row: dict) -> str:
         return f"{row['group']:12s} {row['case']:24s} {row['implementation']:9s} skipped: {row.get('note', '')}"
     ratio = row.get("flocking_speedup", 1.0)
     return (f"{row['group']:12s} {row['case']:24s} {row['implementation']:9s} "
-            f"{row['particle_steps_per_s']:10.3g} p-steps/s   flocking x{ratio:6.2f}")
+            f"{row['particle_steps_per_s']:10.3g} p-steps/s {row['cpu_ns_per_particle_step']:7.0f} cpu-ns/p-step"
+            f"   flocking x{ratio:6.2f}")
 
 
 # -- memory -----------------------------------------------------------------------------
 
 _PROBE = """
-import resource, sys, tempfile, os
-import numpy as np
+import sys, tempfile, os, tracemalloc
 from flocking import Model, Simulation, GSDWriter
-small = Simulation(Model(n=1000, density=2.0, noise=1.0))
-small.writers.append(GSDWriter(os.path.join(tempfile.mkdtemp(), "t.gsd"), 100))
-small.run(2)
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-n, steps = int(sys.argv[1]), int(sys.argv[2])
 with tempfile.TemporaryDirectory() as tmp:
+    small = Simulation(Model(n=1000, density=2.0, noise=1.0))  # compiles, outside the count
+    small.writers.append(GSDWriter(os.path.join(tmp, "s.gsd"), 100))
+    small.run(2)
+    n, steps = int(sys.argv[1]), int(sys.argv[2])
+    tracemalloc.start()
     sim = Simulation(Model(n=n, density=2.0, noise=1.0))
     sim.writers.append(GSDWriter(os.path.join(tmp, "t.gsd"), 100))
     sim.run(steps)
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print((peak - base) * 1024 / n)
+    print(tracemalloc.get_traced_memory()[1] / n)
 """
 
 
-def memory_probe(n: int, steps: int = 200) -> float:
-    """Peak resident bytes per particle of a 2D run of ``n`` particles writing a GSD frame
-    every 100 steps, in a fresh process, less what the interpreter and kernels take."""
+def memory_probe(n: int, steps: int = 101) -> float:
+    """Peak bytes per particle of a 2D run of ``n`` particles writing a GSD frame every 100
+    steps (initial state included), in a fresh process: every NumPy array, as traced by
+    :mod:`tracemalloc`; the kernels allocate nothing per step."""
     src = str(Path(__file__).resolve().parent.parent)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([src, os.environ.get("PYTHONPATH", "")])}
     out = subprocess.run([sys.executable, "-c", _PROBE, str(n), str(steps)], env=env, check=True,
@@ -365,19 +374,23 @@ def markdown(result: dict) -> str:
     m = result["machine"]
     lines = [f"Machine: {m['cpu']}, {m['cores']} cores; {m['threads']} numba threads; Python {m['python']}, "
              f"NumPy {m['numpy']}, numba {m['numba']}; pyvicsek {m.get('pyvicsek') or 'not installed'}.", "",
-             "| group | case | implementation | threads | particle-steps/s | flocking speed-up |",
-             "| --- | --- | --- | ---: | ---: | ---: |"]
+             "| group | case | implementation | threads | particle-steps/s | CPU ns per particle-step "
+             "| flocking speed-up |",
+             "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
     for r in result["rows"]:
         rate = r.get("particle_steps_per_s")
         rate_s = f"{rate:.3g}" if rate else f"skipped ({r.get('note', '')})"
         ratio = f"{r['flocking_speedup']:.2f}x" if r.get("flocking_speedup") and r["implementation"] != "flocking" else ""
         extra = f" (crowding {r['crowding']:.2f})" if "crowding" in r and r["implementation"] == "flocking" else ""
-        lines.append(f"| {r['group']} | {r['case']}{extra} | {r['implementation']} | {r['threads']} | {rate_s} | {ratio} |")
+        cpu = f"{r['cpu_ns_per_particle_step']:.0f}" if rate else ""
+        lines.append(f"| {r['group']} | {r['case']}{extra} | {r['implementation']} | {r['threads']} | {rate_s} "
+                     f"| {cpu} | {ratio} |")
     if result["summary"]:
         lines += ["", "| derived ratio | value |", "| --- | ---: |"]
         lines += [f"| {k} | {v:.2f} |" for k, v in sorted(result["summary"].items())]
     if result["memory_bytes_per_particle"]:
-        lines += ["", "| N (2D, GSD frame every 100 steps) | peak bytes per particle |", "| ---: | ---: |"]
+        lines += ["", "| N (2D, GSD frame every 100 steps) | peak bytes per particle (NumPy, tracemalloc) |",
+                  "| ---: | ---: |"]
         lines += [f"| {int(n):.0e} | {v:.0f} |" for n, v in result["memory_bytes_per_particle"].items()]
     return "\n".join(lines) + "\n"
 
