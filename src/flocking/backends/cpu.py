@@ -16,8 +16,8 @@ smaller than ``3R``) goes through a generic kernel that takes the minimum image 
 so no particle is counted twice. Topological neighbours search rings of cells outward
 until the k-th distance is inside the searched region.
 
-Determinism. Work is split into fixed blocks of slots dealt round-robin to the threads
-(which balances clustered states); a particle's new heading depends only on the sorted
+Determinism. Work is split into fixed blocks of slots that threads take from an atomic
+counter as they become free (which balances clustered states and busy machines); a particle's new heading depends only on the sorted
 arrays, which a stable sort makes unique, and on counter-based random numbers. The polar
 order is summed per block, then over blocks in order. No result depends on the number of
 threads.
@@ -47,6 +47,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
+from numba.core import cgutils, types  # noqa: E402
+from numba.extending import intrinsic  # noqa: E402
 
 from ..model import Model
 from ..state import State  # noqa: E402
@@ -76,6 +78,19 @@ def cell_grid(model: Model) -> np.ndarray:
     if total > cap:
         nc = np.maximum(np.floor(nc * (cap / total) ** (1.0 / model.dim)), 1.0)
     return nc.astype(np.int64)
+
+
+@intrinsic
+def _fetch_add(typingctx, counter):
+    """Atomically ``counter[0] += 1``, returning the old value: hands out work blocks."""
+    sig = types.int64(counter)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
+
+    return sig, codegen
 
 
 # -- the cell structure: parallel stable counting sort ---------------------------------
@@ -417,6 +432,7 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
     per_particle = spd.shape[0] == n
     nblocks = (n + _BLOCK - 1) // _BLOCK
     nt = max(1, min(threads, nblocks))
+    counter = np.zeros(1, dtype=np.int64)
     for t in numba.prange(nt):
         best_d2 = np.empty(max(k, 1))
         best_id = np.empty(max(k, 1), dtype=np.int64)
@@ -428,7 +444,12 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
         buf = np.empty((2 * d, cap))
         ocap = 16
         out = np.empty((d + 1, ocap))
-        for b in range(t, nblocks, nt):  # round-robin blocks: balanced when particles cluster
+        while True:
+            # blocks go to whichever thread is free: balanced when particles cluster or
+            # when another program holds a core; a block's result never depends on who
+            b = _fetch_add(counter)
+            if b >= nblocks:
+                break
             s0 = b * _BLOCK
             s1 = min(n, s0 + _BLOCK)
             c = np.searchsorted(start, s0, side="right") - 1
