@@ -93,6 +93,28 @@ def _fetch_add(typingctx, counter):
     return sig, codegen
 
 
+@intrinsic
+def _prefetch(typingctx, ring, slot, pid):
+    """Hint the cache to fetch ``ring[slot, pid]`` for writing (``llvm.prefetch``)."""
+    sig = types.void(ring, slot, pid)
+
+    def codegen(context, builder, signature, args):
+        from llvmlite import ir
+
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        idx = [context.cast(builder, args[1], signature.args[1], types.intp),
+               context.cast(builder, args[2], signature.args[2], types.intp), context.get_constant(types.intp, 0)]
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, idx)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0i8")
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(1), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
 # -- the cell structure: parallel stable counting sort ---------------------------------
 
 
@@ -494,6 +516,9 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
                         count = found + 1
                     total = float(count)  # the particle itself included
                     if delay > 0:
+                        # ring rows are read by particle id, in no particular order: ask for
+                        # the row a few particles ahead so that its cache miss overlaps work
+                        _prefetch(ring, slot, ids[min(i + 4, n - 1)])
                         # this slot holds the sums of `delay` steps ago: read them, store today's
                         pid = ids[i]
                         osx, osy, osz, ototal = ring[slot, pid, 0], ring[slot, pid, 1], 0.0, ring[slot, pid, d]
