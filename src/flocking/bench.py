@@ -172,7 +172,11 @@ def _runner_flocking(model: Model, state: State, threads: int):
 def _runner_kdtree(model: Model, state: State, threads: int, refs: Path):
     if len(set(model.box)) != 1:
         return None
-    sim = _load_kdtree(refs)(state.positions, model.box[0], model.radius, model.speed, model.noise, model.dt,
+    try:
+        reference = _load_kdtree(refs)
+    except ImportError:  # no SciPy here
+        return None
+    sim = reference(state.positions, model.box[0], model.radius, model.speed, model.noise, model.dt,
                              headings=state.headings, seed=model.seed)
     return sim.advance
 
@@ -221,7 +225,8 @@ def run_case(case: Case, refs: Path | None, repeats: int, long_steps: int, log=p
                    implementation=name, threads=threads, steps=case.steps, repeats=repeats)
         advance = make() if make else None
         if advance is None:
-            row["note"] = "not installed" if name == "pyvicsek" else "no benchmarks/ folder (use --refs)"
+            row["note"] = ("no benchmarks/ folder (use --refs)" if make is None
+                           else "pyvicsek not installed" if name == "pyvicsek" else "SciPy not installed")
         else:
             # compiles once and lets a random start form clusters (the references need no
             # compiling: one step, so that a slow one does not take minutes here)
