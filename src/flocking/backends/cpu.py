@@ -253,8 +253,10 @@ def _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d):
 def _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d):
     """The particles of the 3^d cells around cell ``c`` into ``buf`` (coordinates rows
     ``0..d-1``, headings rows ``d..2d-1``), shifted to the periodic image nearest ``c``:
-    then one branch-free loop over a contiguous buffer serves every particle of ``c``."""
+    then one branch-free loop over a contiguous buffer serves every particle of ``c``.
+    Returns how many were copied, or -1 if they do not fit."""
     nx, ny = nc[0], nc[1]
+    cap = buf.shape[1]
     cx = c % nx
     cy = (c // nx) % ny
     cz = c // (nx * ny) if d == 3 else 0
@@ -264,6 +266,8 @@ def _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d):
         for oy in range(-1, 2):
             gy, shy = _neighbour_row(cy + oy, ny, box[1])
             lo, hi, shx, lo2, hi2, shx2 = _x_ranges((gz * ny + gy) * nx, cx, nx, start, box[0])
+            if m + (hi - lo) + (hi2 - lo2) > cap:
+                return -1
             m = _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d)
             m = _copy(x, y, z, hx, hy, hz, lo2, hi2, shx2, shy, shz, buf, m, d)
     return m
@@ -462,8 +466,7 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
         # views taken once per thread: a view in the hot loop costs an atomic refcount
         x, y, z = pos[0], pos[1], pos[d - 1]
         hx, hy, hz = head[0], head[1], head[d - 1]
-        cap = 64
-        buf = np.empty((2 * d, cap))
+        buf = np.empty((2 * d, 64))
         ocap = 16
         out = np.empty((d + 1, ocap))
         while True:
@@ -481,14 +484,13 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
             while c < ncells and start[c] < s1:
                 i0, i1 = max(start[c], s0), min(start[c + 1], s1)
                 if mode == 0 and i0 < i1:
-                    need = _candidates(c, start, nc, d)
-                    if need > cap:
-                        cap = 2 * need
-                        buf = np.empty((2 * d, cap))
                     if i1 - i0 > ocap:
                         ocap = 2 * (i1 - i0)
                         out = np.empty((d + 1, ocap))
                     m = _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d)
+                    if m < 0:  # a dense cell: a buffer twice as large as it needs, then again
+                        buf = np.empty((2 * d, 2 * _candidates(c, start, nc, d)))
+                        m = _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d)
                     if d == 2:
                         _reduce_2d(buf, m, x, y, i0, i1, r2, out)
                     else:
