@@ -1,25 +1,32 @@
 """The default backend: numba kernels over cell lists, multi-threaded and deterministic.
 
-Layout. The particle arrays (positions, headings, speeds, ids) are kept in *cell order*:
-after every step a stable counting sort by cell reorders them, so the particles of one
-cell, and of a row of cells, are contiguous in memory and neighbour loops read them
-nearly sequentially. ``ids`` maps a slot back to the particle, which keys the random
-numbers and the delay buffer and gives the user the id order back.
+Layout. The particle arrays are *structure of arrays*, ``pos[a, slot]`` and
+``head[a, slot]``, kept in *cell order*: after every step a stable, parallel counting
+sort by cell scatters them into the other half of a double buffer, so the particles of
+one cell, and of a row of cells, are contiguous. ``ids[slot]`` (int32) is the particle
+behind a slot; it keys the random numbers and the delay ring and gives the user the id
+order back. Constant speeds are stored as one number, not an array.
 
-Determinism. The sorted order is by cell, then by particle id within a cell: a pure
+Cells. Metric neighbours use cells at least ``R`` wide (at most about one per particle)
+numbered row by row with x fastest, so the three cells of a row around a cell are one
+contiguous range of slots: 3 ranges per cell in 2D, 9 in 3D, each with one periodic shift
+decided once per cell (a range that wraps around x is split in two). The inner loop has no
+branch but the distance test and vectorises. An axis with fewer than three cells (a box
+smaller than ``3R``) goes through a generic kernel that takes the minimum image per pair,
+so no particle is counted twice. Topological neighbours search rings of cells outward
+until the k-th distance is inside the searched region.
+
+Determinism. Work is split into fixed blocks of slots that threads take from an atomic
+counter as they become free (which balances clustered states and busy machines). A
+particle's new heading depends only on the sorted arrays and on counter-based random
+numbers, and the sorted order is by cell, then by particle id within a cell: a pure
 function of the state, so neither the thread count nor a restart from a checkpoint changes
-the order in which neighbours are added. Random numbers are counter-based and the polar
-order is summed in fixed blocks. No result depends on the number of threads.
+the order in which neighbours are added. The polar order is summed per block, then over
+blocks in order. No result depends on the number of threads.
 
-Cells. Metric neighbours use cells at least ``R`` wide, at most about one per particle;
-an axis with fewer than three cells visits each of its cells once and takes the minimum
-image per pair, so boxes smaller than ``3R`` never count a particle twice. Topological
-neighbours search rings of cells outward until the k-th distance is inside the searched
-region.
-
-Delay. The sum of the neighbours' headings (without the particle itself) and their count
-at step ``t`` is exactly what step ``t + tau`` needs: a ring buffer of ``tau`` such sums,
-indexed by particle id, replaces a second neighbour search.
+Delay. The sum of the neighbours' headings (without the particle itself) and ``1 +`` their
+count at step ``t`` is exactly what step ``t + tau`` needs: ``_ring[t % tau, id]`` holds
+it, indexed by particle id, and replaces a second neighbour search.
 
 >>> from flocking import Model, State
 >>> from flocking.backends.cpu import CPUBackend
@@ -33,41 +40,92 @@ indexed by particle id, replaces a second neighbour search.
 from __future__ import annotations
 
 import math
+import os
 
-import numba
-import numpy as np
+# Idle OpenMP threads sleep instead of spinning between the several parallel loops of a
+# step: on a machine shared with other work, spinning costs the scheduler's fair share and
+# halved throughput in our measurements (docs/performance.md). Set it to override.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+from numba.core import cgutils, types  # noqa: E402
+from numba.extending import intrinsic  # noqa: E402
 
 from ..model import Model
-from ..state import State
-from .kernels import minimum_image, update_2d, update_3d, wrap
+from ..state import State  # noqa: E402
+from .kernels import minimum_image, update_2d, update_3d, wrap  # noqa: E402
 
-_BLOCK = 1024  # particles per block of the parallel loops; fixed, so results do not depend on threads
+_BLOCK = 512  # slots per block of the parallel loops; fixed, so results do not depend on threads
+_SCAN = 4096  # cells per block of the parallel prefix sum
 
 
 def cell_grid(model: Model) -> np.ndarray:
-    """Cells per axis: at least ``R`` wide (metric), at most about one per particle."""
+    """Cells per axis: at least ``R`` wide (metric), at most about one per particle.
+
+    >>> cell_grid(Model(n=100, box=10.0, noise=0.1)).tolist()
+    [9, 9]
+    """
     box = np.asarray(model.box, dtype=np.float64)
     if model.neighbours == "metric":
-        nc = np.floor(box / model.radius)
-        cap = max(model.n, 1)
+        # a hair wider than R, so rounding in the cell index can never hide a neighbour
+        nc = np.floor(box / (model.radius * (1.0 + 1e-9)))
     else:
-        # about 2(k+1) particles in the 3^d block around a cell
-        per_cell = max(2.0 * (model.k + 1) / 3**model.dim, 0.5)
+        # about 3(k+1) particles in the 3^d block around a cell
+        per_cell = max(3.0 * (model.k + 1) / 3**model.dim, 0.5)
         nc = np.floor(box / (per_cell / model.density) ** (1.0 / model.dim))
-        cap = max(model.n, 1)
     nc = np.maximum(nc, 1.0)
+    cap = max(model.n, 1)
     total = np.prod(nc)
     if total > cap:
         nc = np.maximum(np.floor(nc * (cap / total) ** (1.0 / model.dim)), 1.0)
     return nc.astype(np.int64)
 
 
-@numba.njit(cache=True)
+@intrinsic
+def _fetch_add(typingctx, counter):
+    """Atomically ``counter[0] += 1``, returning the old value: hands out work blocks."""
+    sig = types.int64(counter)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
+
+    return sig, codegen
+
+
+@intrinsic
+def _prefetch(typingctx, ring, slot, pid):
+    """Hint the cache to fetch ``ring[slot, pid]`` for writing (``llvm.prefetch``)."""
+    sig = types.void(ring, slot, pid)
+
+    def codegen(context, builder, signature, args):
+        from llvmlite import ir
+
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        idx = [context.cast(builder, args[1], signature.args[1], types.intp),
+               context.cast(builder, args[2], signature.args[2], types.intp), context.get_constant(types.intp, 0)]
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, idx)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0i8")
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(1), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+# -- the cell structure: parallel stable counting sort ---------------------------------
+
+
+@numba.njit(cache=True, inline="always")
 def _cell_of(pos, i, nc, inv):
     """Row-major cell index with x fastest, so a row of cells is contiguous."""
     c = 0
-    for a in range(pos.shape[1] - 1, -1, -1):
-        ca = int(pos[i, a] * inv[a])
+    for a in range(pos.shape[0] - 1, -1, -1):
+        ca = int(pos[a, i] * inv[a])
         if ca >= nc[a]:
             ca = nc[a] - 1
         c = c * nc[a] + ca
@@ -76,54 +134,229 @@ def _cell_of(pos, i, nc, inv):
 
 @numba.njit(cache=True, parallel=True)
 def _cells(pos, nc, inv, out):
-    for i in numba.prange(pos.shape[0]):
+    for i in numba.prange(pos.shape[1]):
         out[i] = _cell_of(pos, i, nc, inv)
 
 
-@numba.njit(cache=True)
-def _order(cell, ncells, start, order):
-    """Stable counting sort: ``start`` (ncells+1) and ``order[slot] = old index``."""
-    start[:] = 0
-    for i in range(cell.shape[0]):
-        start[cell[i] + 1] += 1
-    for c in range(ncells):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    for i in range(cell.shape[0]):
-        c = cell[i]
-        order[fill[c]] = i
-        fill[c] += 1
+@numba.njit(cache=True, parallel=True)
+def _sort(cell, hist, start):
+    """Stable counting sort by cell, in parallel: ``start`` (ncells + 1) gets each cell's
+    first slot and ``hist[t, c]`` the first slot of chunk ``t``'s particles in cell ``c``.
+
+    Chunks are contiguous and their offsets are taken in chunk order, so the result is the
+    unique stable order whatever the number of chunks (threads).
+    """
+    nt, ncells = hist.shape
+    n = cell.shape[0]
+    for t in numba.prange(nt):
+        h = hist[t]
+        h[:] = 0
+        for i in range(t * n // nt, (t + 1) * n // nt):
+            h[cell[i]] += 1
+    nb = (ncells + _SCAN - 1) // _SCAN
+    sums = np.zeros(nb + 1, dtype=np.int64)
+    for b in numba.prange(nb):
+        tot = 0
+        for c in range(b * _SCAN, min(ncells, (b + 1) * _SCAN)):
+            for t in range(nt):
+                tot += hist[t, c]
+        sums[b + 1] = tot
+    for b in range(nb):
+        sums[b + 1] += sums[b]
+    for b in numba.prange(nb):
+        run = sums[b]
+        for c in range(b * _SCAN, min(ncells, (b + 1) * _SCAN)):
+            start[c] = run
+            for t in range(nt):
+                v = hist[t, c]
+                hist[t, c] = run
+                run += v
+    start[ncells] = n
 
 
 @numba.njit(cache=True, parallel=True)
-def _by_id_within_cells(order, start, ids):
-    """Sort each cell's slots by particle id: the order becomes a pure function of the state,
-    so a run continued from a checkpoint adds neighbours in the same order as one that never
-    stopped."""
+def _scatter(cell, hist, pos, head, spd, ids, pos2, head2, spd2, ids2):
+    """Move every particle to its slot in cell order (``hist`` from :func:`_sort`)."""
+    nt = hist.shape[0]
+    n = cell.shape[0]
+    d = pos.shape[0]
+    per_particle = spd.shape[0] == n
+    for t in numba.prange(nt):
+        h = hist[t]
+        for i in range(t * n // nt, (t + 1) * n // nt):
+            c = cell[i]
+            s = h[c]
+            h[c] = s + 1
+            for a in range(d):
+                pos2[a, s] = pos[a, i]
+                head2[a, s] = head[a, i]
+            if per_particle:
+                spd2[s] = spd[i]
+            ids2[s] = ids[i]
+
+
+@numba.njit(cache=True, parallel=True)
+def _by_id_within_cells(start, pos, head, spd, ids):
+    """Sort each cell's slots by particle id (insertion sort: cells hold a few particles and
+    are mostly in order already). The order, cell then id, is then a pure function of the
+    state, so a run continued from a checkpoint adds neighbours in the same order as one
+    that never stopped."""
+    d = pos.shape[0]
+    per_particle = spd.shape[0] == ids.shape[0] and ids.shape[0] > 1
     for c in numba.prange(start.shape[0] - 1):
-        for s in range(start[c] + 1, start[c + 1]):
-            o = order[s]
-            key = ids[o]
+        lo, hi = start[c], start[c + 1]
+        for s in range(lo + 1, hi):
+            key = ids[s]
+            if ids[s - 1] <= key:
+                continue
+            p0, p1, p2 = pos[0, s], pos[1, s], pos[d - 1, s]
+            h0, h1, h2 = head[0, s], head[1, s], head[d - 1, s]
+            sp = spd[s] if per_particle else 0.0
             t = s
-            while t > start[c] and ids[order[t - 1]] > key:
-                order[t] = order[t - 1]
+            while t > lo and ids[t - 1] > key:
+                for a in range(d):
+                    pos[a, t] = pos[a, t - 1]
+                    head[a, t] = head[a, t - 1]
+                if per_particle:
+                    spd[t] = spd[t - 1]
+                ids[t] = ids[t - 1]
                 t -= 1
-            order[t] = o
-
-
-@numba.njit(cache=True, parallel=True)
-def _gather(order, pos, head, spd, ids, pos2, head2, spd2, ids2):
-    d = pos.shape[1]
-    for s in numba.prange(order.shape[0]):
-        i = order[s]
-        for a in range(d):
-            pos2[s, a] = pos[i, a]
-            head2[s, a] = head[i, a]
-        spd2[s] = spd[i]
-        ids2[s] = ids[i]
+            pos[0, t], pos[1, t], pos[d - 1, t] = p0, p1, p2
+            head[0, t], head[1, t], head[d - 1, t] = h0, h1, h2
+            if per_particle:
+                spd[t] = sp
+            ids[t] = key
 
 
 # -- neighbour sums -------------------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def _neighbour_row(g, n, length):
+    """Row/plane ``g`` folded into ``0..n-1`` and the shift to add to a displacement."""
+    if g < 0:
+        return g + n, -length
+    if g >= n:
+        return g - n, length
+    return g, 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _x_ranges(row0, cx, nx, start, lx):
+    """The three cells around column ``cx`` of a row as at most two contiguous slot ranges
+    ``(lo, hi, shift)``; the second is empty unless the row wraps around x."""
+    if cx == 0:
+        return (start[row0], start[row0 + 2], 0.0, start[row0 + nx - 1], start[row0 + nx], -lx)
+    if cx == nx - 1:
+        return (start[row0 + nx - 2], start[row0 + nx], 0.0, start[row0], start[row0 + 1], lx)
+    return (start[row0 + cx - 1], start[row0 + cx + 2], 0.0, 0, 0, 0.0)
+
+
+@numba.njit(cache=True)
+def _candidates(c, start, nc, d):
+    """Number of particles in the 3^d cells around cell ``c`` (fast grids only)."""
+    nx, ny = nc[0], nc[1]
+    cx = c % nx
+    cy = (c // nx) % ny
+    cz = c // (nx * ny) if d == 3 else 0
+    m = 0
+    for oz in range(-1 if d == 3 else 0, 2 if d == 3 else 1):
+        gz = (cz + oz) % nc[d - 1]
+        for oy in range(-1, 2):
+            gy = (cy + oy) % ny
+            lo, hi, _, lo2, hi2, _ = _x_ranges((gz * ny + gy) * nx, cx, nx, start, 0.0)
+            m += (hi - lo) + (hi2 - lo2)
+    return m
+
+
+@numba.njit(cache=True, inline="always")
+def _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d):
+    """Append slots ``lo..hi`` to the candidate buffer, periodic shift applied."""
+    for j in range(lo, hi):
+        buf[0, m] = x[j] + shx
+        buf[1, m] = y[j] + shy
+        buf[d, m] = hx[j]
+        buf[d + 1, m] = hy[j]
+        if d == 3:
+            buf[2, m] = z[j] + shz
+            buf[5, m] = hz[j]
+        m += 1
+    return m
+
+
+@numba.njit(cache=True)
+def _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d):
+    """The particles of the 3^d cells around cell ``c`` into ``buf`` (coordinates rows
+    ``0..d-1``, headings rows ``d..2d-1``), shifted to the periodic image nearest ``c``:
+    then one branch-free loop over a contiguous buffer serves every particle of ``c``.
+    Returns how many were copied, or -1 if they do not fit."""
+    nx, ny = nc[0], nc[1]
+    cap = buf.shape[1]
+    cx = c % nx
+    cy = (c // nx) % ny
+    cz = c // (nx * ny) if d == 3 else 0
+    m = 0
+    for oz in range(-1 if d == 3 else 0, 2 if d == 3 else 1):
+        gz, shz = _neighbour_row(cz + oz, nc[d - 1], box[d - 1])
+        for oy in range(-1, 2):
+            gy, shy = _neighbour_row(cy + oy, ny, box[1])
+            lo, hi, shx, lo2, hi2, shx2 = _x_ranges((gz * ny + gy) * nx, cx, nx, start, box[0])
+            if m + (hi - lo) + (hi2 - lo2) > cap:
+                return -1
+            m = _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d)
+            m = _copy(x, y, z, hx, hy, hz, lo2, hi2, shx2, shy, shz, buf, m, d)
+    return m
+
+
+@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
+def _reduce_2d(buf, m, x, y, i0, i1, r2, out):
+    """For slots ``i0..i1``: sum of headings and count of the buffered candidates within
+    ``R`` (self included) into ``out[:, i - i0]``.
+
+    ``reassoc`` lets the sums vectorise: their order then depends on the vector width of
+    the machine, never on the thread count.
+    """
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        sx = 0.0
+        sy = 0.0
+        n = 0.0
+        for j in range(m):
+            dx = buf[0, j] - xi
+            dy = buf[1, j] - yi
+            w = 1.0 if dx * dx + dy * dy < r2 else 0.0
+            sx += buf[2, j] * w
+            sy += buf[3, j] * w
+            n += w
+        out[0, i - i0] = sx
+        out[1, i - i0] = sy
+        out[2, i - i0] = n
+
+
+@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
+def _reduce_3d(buf, m, x, y, z, i0, i1, r2, out):
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        zi = z[i]
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        n = 0.0
+        for j in range(m):
+            dx = buf[0, j] - xi
+            dy = buf[1, j] - yi
+            dz = buf[2, j] - zi
+            w = 1.0 if dx * dx + dy * dy + dz * dz < r2 else 0.0
+            sx += buf[3, j] * w
+            sy += buf[4, j] * w
+            sz += buf[5, j] * w
+            n += w
+        out[0, i - i0] = sx
+        out[1, i - i0] = sy
+        out[2, i - i0] = sz
+        out[3, i - i0] = n
 
 
 @numba.njit(cache=True, inline="always")
@@ -135,185 +368,105 @@ def _axis_cells(c, n):
 
 
 @numba.njit(cache=True)
-def _metric_sums_2d(i, pos, head, start, nc, box, half, r2):
-    xi, yi = pos[i, 0], pos[i, 1]
-    cx = min(int(xi * nc[0] / box[0]), nc[0] - 1)
-    cy = min(int(yi * nc[1] / box[1]), nc[1] - 1)
-    ox0, nx = _axis_cells(cx, nc[0])
-    oy0, ny = _axis_cells(cy, nc[1])
-    sx = 0.0
-    sy = 0.0
-    count = 0
-    for oy in range(ny):
-        gy = oy0 + oy
-        shy = 0.0
-        if nc[1] >= 3:
-            if gy < 0:
-                gy += nc[1]
-                shy = box[1]
-            elif gy >= nc[1]:
-                gy -= nc[1]
-                shy = -box[1]
-        for ox in range(nx):
-            gx = ox0 + ox
-            shx = 0.0
-            if nc[0] >= 3:
-                if gx < 0:
-                    gx += nc[0]
-                    shx = box[0]
-                elif gx >= nc[0]:
-                    gx -= nc[0]
-                    shx = -box[0]
-            c = gy * nc[0] + gx
-            for j in range(start[c], start[c + 1]):
-                if j == i:
-                    continue
-                if nc[0] >= 3:
-                    dx = (pos[j, 0] - xi) - shx
-                else:
-                    dx = minimum_image(pos[j, 0] - xi, box[0], half[0])
-                if nc[1] >= 3:
-                    dy = (pos[j, 1] - yi) - shy
-                else:
-                    dy = minimum_image(pos[j, 1] - yi, box[1], half[1])
-                if dx * dx + dy * dy < r2:
-                    sx += head[j, 0]
-                    sy += head[j, 1]
-                    count += 1
-    return sx, sy, count
-
-
-@numba.njit(cache=True)
-def _metric_sums_3d(i, pos, head, start, nc, box, half, r2):
-    xi, yi, zi = pos[i, 0], pos[i, 1], pos[i, 2]
-    cx = min(int(xi * nc[0] / box[0]), nc[0] - 1)
-    cy = min(int(yi * nc[1] / box[1]), nc[1] - 1)
-    cz = min(int(zi * nc[2] / box[2]), nc[2] - 1)
-    ox0, nx = _axis_cells(cx, nc[0])
-    oy0, ny = _axis_cells(cy, nc[1])
-    oz0, nz = _axis_cells(cz, nc[2])
+def _generic_sums(i, c, pos, head, start, nc, box, half, r2):
+    """Like the fast path, for grids with fewer than three cells along some axis: each
+    cell of such an axis is visited once and every pair takes the minimum image."""
+    d = pos.shape[0]
+    o0, n0 = _axis_cells(c % nc[0], nc[0])
+    o1, n1 = _axis_cells((c // nc[0]) % nc[1], nc[1])
+    o2, n2 = 0, 1
+    if d == 3:
+        o2, n2 = _axis_cells(c // (nc[0] * nc[1]), nc[2])
     sx = 0.0
     sy = 0.0
     sz = 0.0
     count = 0
-    for oz in range(nz):
-        gz = oz0 + oz
-        shz = 0.0
-        if nc[2] >= 3:
-            if gz < 0:
-                gz += nc[2]
-                shz = box[2]
-            elif gz >= nc[2]:
-                gz -= nc[2]
-                shz = -box[2]
-        for oy in range(ny):
-            gy = oy0 + oy
-            shy = 0.0
-            if nc[1] >= 3:
-                if gy < 0:
-                    gy += nc[1]
-                    shy = box[1]
-                elif gy >= nc[1]:
-                    gy -= nc[1]
-                    shy = -box[1]
-            for ox in range(nx):
-                gx = ox0 + ox
-                shx = 0.0
-                if nc[0] >= 3:
-                    if gx < 0:
-                        gx += nc[0]
-                        shx = box[0]
-                    elif gx >= nc[0]:
-                        gx -= nc[0]
-                        shx = -box[0]
-                c = (gz * nc[1] + gy) * nc[0] + gx
-                for j in range(start[c], start[c + 1]):
-                    if j == i:
-                        continue
-                    if nc[0] >= 3:
-                        dx = (pos[j, 0] - xi) - shx
-                    else:
-                        dx = minimum_image(pos[j, 0] - xi, box[0], half[0])
-                    if nc[1] >= 3:
-                        dy = (pos[j, 1] - yi) - shy
-                    else:
-                        dy = minimum_image(pos[j, 1] - yi, box[1], half[1])
-                    if nc[2] >= 3:
-                        dz = (pos[j, 2] - zi) - shz
-                    else:
-                        dz = minimum_image(pos[j, 2] - zi, box[2], half[2])
-                    if dx * dx + dy * dy + dz * dz < r2:
-                        sx += head[j, 0]
-                        sy += head[j, 1]
-                        sz += head[j, 2]
+    for k2 in range(n2):
+        g2 = (o2 + k2) % nc[2] if d == 3 else 0
+        for k1 in range(n1):
+            g1 = (o1 + k1) % nc[1]
+            for k0 in range(n0):
+                g0 = (o0 + k0) % nc[0]
+                cell = (g2 * nc[1] + g1) * nc[0] + g0
+                for j in range(start[cell], start[cell + 1]):
+                    d2 = 0.0
+                    for a in range(d):
+                        dx = minimum_image(pos[a, j] - pos[a, i], box[a], half[a])
+                        d2 += dx * dx
+                    if d2 < r2:
+                        sx += head[0, j]
+                        sy += head[1, j]
+                        if d == 3:
+                            sz += head[2, j]
                         count += 1
     return sx, sy, sz, count
 
 
 @numba.njit(cache=True)
-def _topological(i, pos, ids, start, nc, box, half, k, best_d2, best_id, best_slot):
+def _topological(i, c, pos, ids, start, nc, box, half, k, best_d2, best_id, best_slot):
     """The k nearest others of slot ``i`` into ``best_slot``; returns how many were found.
 
     Rings of cells (Chebyshev distance r in cell offsets) are searched outward until the
     k-th distance is below the distance to any unsearched cell. Ties go to the lower id.
     """
-    d = pos.shape[1]
-    cell = np.empty(3, dtype=np.int64)
-    lo = np.zeros(3, dtype=np.int64)
-    hi = np.zeros(3, dtype=np.int64)
-    width = np.inf
-    for a in range(3):
-        if a < d:
-            cell[a] = min(int(pos[i, a] * nc[a] / box[a]), nc[a] - 1)
-            lo[a] = (nc[a] - 1) // 2
-            hi[a] = nc[a] - 1 - lo[a]
-            width = min(width, box[a] / nc[a])
-        else:
-            cell[a] = 0
-    rmax = 0
+    d = pos.shape[0]
+    c0 = c % nc[0]
+    c1 = (c // nc[0]) % nc[1]
+    c2 = c // (nc[0] * nc[1]) if d == 3 else 0
+    lo0, lo1 = (nc[0] - 1) // 2, (nc[1] - 1) // 2
+    hi0, hi1 = nc[0] - 1 - lo0, nc[1] - 1 - lo1
+    lo2, hi2 = 0, 0
+    if d == 3:
+        lo2 = (nc[2] - 1) // 2
+        hi2 = nc[2] - 1 - lo2
+    # distance from the particle to the faces of its own cell, the closest first
+    margin = np.inf
     for a in range(d):
-        rmax = max(rmax, lo[a], hi[a])
+        w = box[a] / nc[a]
+        ca = c0 if a == 0 else (c1 if a == 1 else c2)
+        f = pos[a, i] - ca * w
+        margin = min(margin, f, w - f)
+    width = np.inf
+    for a in range(d):
+        width = min(width, box[a] / nc[a])
+    margin = max(margin, 0.0)
+    rmax = max(lo0, hi0, lo1, hi1, lo2, hi2)
     found = 0
     r = 0
     while True:
-        b0 = (-min(r, lo[0]), min(r, hi[0]))
-        b1 = (-min(r, lo[1]), min(r, hi[1]))
-        b2 = (-min(r, lo[2]), min(r, hi[2]))
-        for o0 in range(b0[0], b0[1] + 1):
-            for o1 in range(b1[0], b1[1] + 1):
-                for o2 in range(b2[0], b2[1] + 1):
-                    if max(abs(o0), abs(o1), abs(o2)) != r:
-                        continue
-                    g0 = (cell[0] + o0) % nc[0]
-                    g1 = (cell[1] + o1) % nc[1]
-                    if d == 2:
-                        c = g1 * nc[0] + g0
-                    else:
-                        c = (((cell[2] + o2) % nc[2]) * nc[1] + g1) * nc[0] + g0
-                    for j in range(start[c], start[c + 1]):
-                        if j == i:
-                            continue
-                        d2 = 0.0
-                        for a in range(d):
-                            dx = minimum_image(pos[j, a] - pos[i, a], box[a], half[a])
-                            d2 += dx * dx
-                        jid = ids[j]
-                        if found == k and (d2 > best_d2[k - 1] or (d2 == best_d2[k - 1] and jid > best_id[k - 1])):
-                            continue
-                        p = found if found < k else k - 1
-                        while p > 0 and (best_d2[p - 1] > d2 or (best_d2[p - 1] == d2 and best_id[p - 1] > jid)):
-                            best_d2[p] = best_d2[p - 1]
-                            best_id[p] = best_id[p - 1]
-                            best_slot[p] = best_slot[p - 1]
-                            p -= 1
-                        best_d2[p] = d2
-                        best_id[p] = jid
-                        best_slot[p] = j
-                        if found < k:
-                            found += 1
+        for o2 in range(-min(r, lo2), min(r, hi2) + 1):
+            g2 = (c2 + o2) % nc[2] if d == 3 else 0
+            for o1 in range(-min(r, lo1), min(r, hi1) + 1):
+                g1 = (c1 + o1) % nc[1]
+                edge = abs(o1) == r or abs(o2) == r
+                for o0 in range(-min(r, lo0), min(r, hi0) + 1):
+                    if edge or abs(o0) == r:
+                        g0 = (c0 + o0) % nc[0]
+                        cell = (g2 * nc[1] + g1) * nc[0] + g0
+                        for j in range(start[cell], start[cell + 1]):
+                            if j == i:
+                                continue
+                            d2 = 0.0
+                            for a in range(d):
+                                dx = minimum_image(pos[a, j] - pos[a, i], box[a], half[a])
+                                d2 += dx * dx
+                            jid = ids[j]
+                            if found == k and (d2 > best_d2[k - 1] or (d2 == best_d2[k - 1] and jid > best_id[k - 1])):
+                                continue
+                            p = found if found < k else k - 1
+                            while p > 0 and (best_d2[p - 1] > d2 or (best_d2[p - 1] == d2 and best_id[p - 1] > jid)):
+                                best_d2[p] = best_d2[p - 1]
+                                best_id[p] = best_id[p - 1]
+                                best_slot[p] = best_slot[p - 1]
+                                p -= 1
+                            best_d2[p] = d2
+                            best_id[p] = jid
+                            best_slot[p] = j
+                            if found < k:
+                                found += 1
         if r >= rmax:
             break
-        if found == k and best_d2[k - 1] < (r * width) ** 2:
+        if found == k and best_d2[k - 1] < (r * width + margin) ** 2:
             break
         r += 1
     return found
@@ -323,87 +476,129 @@ def _topological(i, pos, ids, start, nc, box, half, k, best_d2, best_id, best_sl
 
 
 @numba.njit(cache=True, parallel=True)
-def _step(pos, head, spd, ids, start, nc, box, cell, new_pos, new_head, ring, slot, step, p):
-    """One step from the sorted arrays into ``new_*``; ``cell`` gets each new cell.
+def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, p, partial, threads):
+    """One step from the sorted arrays into ``new_*`` (same slots); ``cell`` gets each new
+    cell and ``partial[b]`` the sum of block ``b``'s new headings. ``threads`` only splits
+    the work.
 
     ``p`` packs the scalar parameters: r2, k (0 for metric), eta, vectorial, epsilon,
-    delay, dt, backward, seed.
+    delay, dt, backward, (unused), mode (0 fast metric, 1 generic metric, 2 topological).
     """
-    n, d = pos.shape
+    d, n = pos.shape
     r2, k, eta, vectorial, epsilon = p[0], int(p[1]), p[2], p[3] != 0.0, p[4]
-    delay, dt, backward, seed = int(p[5]), p[6], p[7] != 0.0, np.uint64(p[8])
+    delay, dt, backward, mode = int(p[5]), p[6], p[7] != 0.0, int(p[9])
     half = box / 2.0
     inv = nc / box
+    ncells = start.shape[0] - 1
+    per_particle = spd.shape[0] == n
     nblocks = (n + _BLOCK - 1) // _BLOCK
-    for b in numba.prange(nblocks):
+    nt = max(1, min(threads, nblocks))
+    counter = np.zeros(1, dtype=np.int64)
+    for t in numba.prange(nt):
         best_d2 = np.empty(max(k, 1))
         best_id = np.empty(max(k, 1), dtype=np.int64)
         best_slot = np.empty(max(k, 1), dtype=np.int64)
-        for i in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
-            sz = 0.0
-            count = 0
-            if k == 0:
-                if d == 2:
-                    sx, sy, count = _metric_sums_2d(i, pos, head, start, nc, box, half, r2)
-                else:
-                    sx, sy, sz, count = _metric_sums_3d(i, pos, head, start, nc, box, half, r2)
-            else:
-                count = _topological(i, pos, ids, start, nc, box, half, k, best_d2, best_id, best_slot)
-                sx = 0.0
-                sy = 0.0
-                for q in range(count):
-                    j = best_slot[q]
-                    sx += head[j, 0]
-                    sy += head[j, 1]
-                    if d == 3:
-                        sz += head[j, 2]
-            pid = ids[i]
-            total = 1.0 + count
-            if delay > 0:
-                # this slot holds the sums of `delay` steps ago: read them, then store today's
-                osx, osy, osz, ototal = ring[slot, pid, 0], ring[slot, pid, 1], 0.0, ring[slot, pid, d]
-                if d == 3:
-                    osz = ring[slot, pid, 2]
-                    ring[slot, pid, 2] = sz
-                ring[slot, pid, 0], ring[slot, pid, 1], ring[slot, pid, d] = sx, sy, total
-                sx, sy, sz, total = osx, osy, osz, ototal
-            if d == 2:
-                ux, uy = head[i, 0], head[i, 1]
-                wx, wy = update_2d(ux, uy, ux + sx, uy + sy, total, epsilon, eta, vectorial, seed, step, pid)
-                new_head[i, 0], new_head[i, 1] = wx, wy
-                if not backward:
-                    wx, wy = ux, uy
-                ds = spd[i] * dt
-                new_pos[i, 0] = wrap(pos[i, 0] + ds * wx, box[0])
-                new_pos[i, 1] = wrap(pos[i, 1] + ds * wy, box[1])
-            else:
-                ux, uy, uz = head[i, 0], head[i, 1], head[i, 2]
-                wx, wy, wz = update_3d(ux, uy, uz, ux + sx, uy + sy, uz + sz, total,
-                                       epsilon, eta, vectorial, seed, step, pid)
-                new_head[i, 0], new_head[i, 1], new_head[i, 2] = wx, wy, wz
-                if not backward:
-                    wx, wy, wz = ux, uy, uz
-                ds = spd[i] * dt
-                new_pos[i, 0] = wrap(pos[i, 0] + ds * wx, box[0])
-                new_pos[i, 1] = wrap(pos[i, 1] + ds * wy, box[1])
-                new_pos[i, 2] = wrap(pos[i, 2] + ds * wz, box[2])
-            cell[i] = _cell_of(new_pos, i, nc, inv)
-
-
-@numba.njit(cache=True, parallel=True)
-def _heading_sum(head, out):
-    """Sum of headings in fixed blocks, then the blocks in order: thread-independent."""
-    n, d = head.shape
-    nblocks = (n + _BLOCK - 1) // _BLOCK
-    partial = np.zeros((nblocks, d))
-    for b in numba.prange(nblocks):
-        for i in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
-            for a in range(d):
-                partial[b, a] += head[i, a]
-    out[:] = 0.0
-    for b in range(nblocks):
-        for a in range(d):
-            out[a] += partial[b, a]
+        # views taken once per thread: a view in the hot loop costs an atomic refcount
+        x, y, z = pos[0], pos[1], pos[d - 1]
+        hx, hy, hz = head[0], head[1], head[d - 1]
+        buf = np.empty((2 * d, 64))
+        ocap = 16
+        out = np.empty((d + 1, ocap))
+        while True:
+            # blocks go to whichever thread is free: balanced when particles cluster or
+            # when another program holds a core; a block's result never depends on who
+            b = _fetch_add(counter)
+            if b >= nblocks:
+                break
+            s0 = b * _BLOCK
+            s1 = min(n, s0 + _BLOCK)
+            c = np.searchsorted(start, s0, side="right") - 1
+            px = 0.0
+            py = 0.0
+            pz = 0.0
+            while c < ncells and start[c] < s1:
+                i0, i1 = max(start[c], s0), min(start[c + 1], s1)
+                if mode == 0 and i0 < i1:
+                    if i1 - i0 > ocap:
+                        ocap = 2 * (i1 - i0)
+                        out = np.empty((d + 1, ocap))
+                    m = _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d)
+                    if m < 0:  # a dense cell: a buffer twice as large as it needs, then again
+                        buf = np.empty((2 * d, 2 * _candidates(c, start, nc, d)))
+                        m = _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d)
+                    if d == 2:
+                        _reduce_2d(buf, m, x, y, i0, i1, r2, out)
+                    else:
+                        _reduce_3d(buf, m, x, y, z, i0, i1, r2, out)
+                for i in range(i0, i1):
+                    sz = 0.0
+                    if mode == 0:
+                        sx, sy, count = out[0, i - i0], out[1, i - i0], out[d, i - i0]
+                        if d == 3:
+                            sz = out[2, i - i0]
+                    elif mode == 1:
+                        sx, sy, sz, count = _generic_sums(i, c, pos, head, start, nc, box, half, r2)
+                    else:
+                        found = _topological(i, c, pos, ids, start, nc, box, half, k, best_d2, best_id, best_slot)
+                        sx = head[0, i]
+                        sy = head[1, i]
+                        if d == 3:
+                            sz = head[2, i]
+                        for q in range(found):
+                            j = best_slot[q]
+                            sx += head[0, j]
+                            sy += head[1, j]
+                            if d == 3:
+                                sz += head[2, j]
+                        count = found + 1
+                    total = float(count)  # the particle itself included
+                    if delay > 0:
+                        # ring rows are read by particle id, in no particular order: ask for
+                        # the row a few particles ahead so that its cache miss overlaps work
+                        _prefetch(ring, slot, ids[min(i + 4, n - 1)])
+                        # this slot holds the sums of `delay` steps ago: read them, store today's
+                        pid = ids[i]
+                        osx, osy, osz, ototal = ring[slot, pid, 0], ring[slot, pid, 1], 0.0, ring[slot, pid, d]
+                        ring[slot, pid, 0] = sx - head[0, i]
+                        ring[slot, pid, 1] = sy - head[1, i]
+                        if d == 3:
+                            osz = ring[slot, pid, 2]
+                            ring[slot, pid, 2] = sz - head[2, i]
+                        ring[slot, pid, d] = total
+                        sx = head[0, i] + osx
+                        sy = head[1, i] + osy
+                        if d == 3:
+                            sz = head[2, i] + osz
+                        total = ototal
+                    ds = (spd[i] if per_particle else spd[0]) * dt
+                    if d == 2:
+                        ux, uy = head[0, i], head[1, i]
+                        wx, wy = update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step, ids[i])
+                        new_head[0, i], new_head[1, i] = wx, wy
+                        px += wx
+                        py += wy
+                        if not backward:
+                            wx, wy = ux, uy
+                        new_pos[0, i] = wrap(pos[0, i] + ds * wx, box[0])
+                        new_pos[1, i] = wrap(pos[1, i] + ds * wy, box[1])
+                    else:
+                        ux, uy, uz = head[0, i], head[1, i], head[2, i]
+                        wx, wy, wz = update_3d(ux, uy, uz, sx, sy, sz, total,
+                                               epsilon, eta, vectorial, seed, step, ids[i])
+                        new_head[0, i], new_head[1, i], new_head[2, i] = wx, wy, wz
+                        px += wx
+                        py += wy
+                        pz += wz
+                        if not backward:
+                            wx, wy, wz = ux, uy, uz
+                        new_pos[0, i] = wrap(pos[0, i] + ds * wx, box[0])
+                        new_pos[1, i] = wrap(pos[1, i] + ds * wy, box[1])
+                        new_pos[2, i] = wrap(pos[2, i] + ds * wz, box[2])
+                    cell[i] = _cell_of(new_pos, i, nc, inv)
+                c += 1
+            partial[b, 0] = px
+            partial[b, 1] = py
+            partial[b, 2] = pz
 
 
 class CPUBackend:
@@ -413,33 +608,44 @@ class CPUBackend:
 
     @staticmethod
     def bytes_needed(model: Model) -> int:
-        """Peak memory of a run: double-buffered sorted arrays, cells, the delay ring, and
-        the id-ordered copy a writer takes."""
+        """Peak memory of a run: the sorted arrays (double-buffered), cells and histograms,
+        the delay ring, and the id-ordered copies a writer takes of a frame (measured: about
+        350 bytes a particle in 2D with a trajectory being written)."""
         d = model.dim
-        per_particle = 2 * (2 * d * 8 + 16) + 16 + 8 * model.delay * (d + 1) + (2 * d + 1) * 8 + 24
-        return model.n * per_particle + 8 * int(np.prod(cell_grid(model)))
+        per_particle = 40 * d + 48 + 8 * model.delay * (d + 1) + 24 * (2 * d + 1) + 48
+        return model.n * per_particle + 4 * (numba.get_num_threads() + 1) * int(np.prod(cell_grid(model)))
 
     def __init__(self, model: Model, state: State, memory: dict | None = None):
         self.model = model
         n, d = state.n, state.dim
+        itype = np.int32 if n < 2**31 - 1 else np.int64
         self._box = np.asarray(model.box, dtype=np.float64)
         self._nc = cell_grid(model)
         self._ncells = int(np.prod(self._nc))
-        self._start = np.zeros(self._ncells + 1, dtype=np.int64)
-        self._cell = np.empty(n, dtype=np.int64)
-        self._order = np.empty(n, dtype=np.int64)
-        self._pos, self._head = np.empty((n, d)), np.empty((n, d))
-        self._spd, self._ids = np.empty(n), np.empty(n, dtype=np.int64)
-        self._new_pos, self._new_head = np.empty((n, d)), np.empty((n, d))
-        self._tmp_spd, self._tmp_ids = np.empty(n), np.empty(n, dtype=np.int64)
+        ctype = np.int32 if self._ncells < 2**31 - 1 else np.int64
+        self._start = np.zeros(self._ncells + 1, dtype=itype)
+        self._hist = np.zeros((numba.get_num_threads(), self._ncells), dtype=itype)
+        self._cell = np.empty(n, dtype=ctype)
+        self._pos, self._head = np.empty((d, n)), np.empty((d, n))
+        self._new_pos, self._new_head = np.empty((d, n)), np.empty((d, n))
+        self._ids, self._tmp_ids = np.empty(n, dtype=itype), np.empty(n, dtype=itype)
+        speeds = state.speeds
+        if n and np.all(speeds == speeds[0]):
+            self._spd, self._tmp_spd = speeds[:1].copy(), speeds[:1].copy()  # one number
+        else:
+            self._spd, self._tmp_spd = np.empty(n), np.empty(n)
+        self._partial = np.zeros(((n + _BLOCK - 1) // _BLOCK, 3))
         self._step_count = state.step
+        if model.neighbours == "topological":
+            mode = 2
+        else:
+            mode = 0 if np.all(self._nc >= 3) else 1
         self._params = np.array([
             model.radius**2, model.k if model.neighbours == "topological" else 0, model.noise,
             model.noise_type == "vectorial", model.alignment, model.delay, model.dt,
-            model.update == "backward", model.seed,
+            model.update == "backward", 0.0, mode,
         ], dtype=np.float64)
-        if model.seed >= 2**53:
-            raise ValueError("seed: the CPU backend takes seeds below 2**53")
+        self._seed = np.uint64(model.seed)  # its own argument: a double would round seeds above 2**53
         # ring[t % delay, id]: the neighbours' heading sum and 1 + their count at step t
         self._ring = np.zeros((max(model.delay, 1), n if model.delay else 1, d + 1))
         self._load(state, memory)
@@ -449,14 +655,22 @@ class CPUBackend:
         return {"ring": self._ring.copy()} if self.model.delay else {}
 
     def _load(self, state: State, memory: dict | None) -> None:
-        _cells(state.positions, self._nc, self._nc / self._box, self._cell)
-        _order(self._cell, self._ncells, self._start, self._order)
-        _gather(self._order, state.positions, state.headings, state.speeds,
-                np.arange(state.n, dtype=np.int64), self._pos, self._head, self._spd, self._ids)
+        pos = np.ascontiguousarray(state.positions.T)
+        _cells(pos, self._nc, self._nc / self._box, self._cell)
+        spd = state.speeds if self._spd.shape[0] > 1 else self._tmp_spd
+        self._sort_into(pos, np.ascontiguousarray(state.headings.T), spd,
+                        np.arange(state.n, dtype=self._ids.dtype), self._spd, self._ids)
         if memory:
             self._ring[:] = memory["ring"]
         elif self.model.delay:
             self._prime_delay()
+
+    def _sort_into(self, pos, head, spd, ids, spd2, ids2) -> None:
+        """Sort by ``self._cell`` into ``self._pos``, ``self._head``, ``spd2`` and ``ids2``."""
+        hist = self._hist[: max(1, min(numba.get_num_threads(), self._hist.shape[0]))]
+        _sort(self._cell, hist, self._start)
+        _scatter(self._cell, hist, pos, head, spd, ids, self._pos, self._head, spd2, ids2)
+        _by_id_within_cells(self._start, self._pos, self._head, spd2, ids2)
 
     def _prime_delay(self) -> None:
         """Fill every ring slot with the current sums: the initial state stands in for the past."""
@@ -465,13 +679,13 @@ class CPUBackend:
     def neighbour_sums(self) -> np.ndarray:
         """Per particle id, the neighbours' heading sum (the particle itself left out) and
         ``1 +`` their count, for the current state: shape ``(N, d + 1)``."""
-        n, d = self._pos.shape
+        d, n = self._pos.shape
         ring = np.zeros((1, n, d + 1))
         params = self._params.copy()
         params[5] = 1.0  # record the sums in a one-slot ring; the step itself is thrown away
         _step(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
-              self._cell.copy(), self._new_pos.copy(), self._new_head.copy(), ring, 0,
-              self._step_count, params)
+              np.empty_like(self._pos), np.empty_like(self._head), self._cell.copy(), ring, 0,
+              self._step_count, self._seed, params, self._partial.copy(), numba.get_num_threads())
         return ring[0]
 
     @property
@@ -480,29 +694,30 @@ class CPUBackend:
 
     @property
     def state(self) -> State:
-        n, d = self._pos.shape
-        pos, head, spd = np.empty((n, d)), np.empty((n, d)), np.empty(n)
-        pos[self._ids], head[self._ids], spd[self._ids] = self._pos, self._head, self._spd
+        d, n = self._pos.shape
+        pos, head = np.empty((n, d)), np.empty((n, d))
+        pos[self._ids], head[self._ids] = self._pos.T, self._head.T
+        if self._spd.shape[0] == n and n > 1:
+            spd = np.empty(n)
+            spd[self._ids] = self._spd
+        else:
+            spd = np.full(n, self._spd[0] if n else 0.0)
         return State(pos, head, spd, self._step_count)
 
     def advance(self, steps: int) -> np.ndarray:
         """Take ``steps`` steps; return the polar order after each."""
-        n, d = self._pos.shape
+        d, n = self._pos.shape
         phi = np.empty(steps)
-        total = np.empty(d)
         delay = self.model.delay
         for t in range(steps):
             slot = self._step_count % delay if delay else 0
             _step(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
-                  self._cell, self._new_pos, self._new_head, self._ring, slot, self._step_count,
-                  self._params)
-            _order(self._cell, self._ncells, self._start, self._order)
-            _by_id_within_cells(self._order, self._start, self._ids)
-            _gather(self._order, self._new_pos, self._new_head, self._spd, self._ids,
-                    self._pos, self._head, self._tmp_spd, self._tmp_ids)
+                  self._new_pos, self._new_head, self._cell, self._ring, slot, self._step_count,
+                  self._seed, self._params, self._partial, numba.get_num_threads())
+            self._sort_into(self._new_pos, self._new_head, self._spd, self._ids, self._tmp_spd, self._tmp_ids)
             self._spd, self._tmp_spd = self._tmp_spd, self._spd
             self._ids, self._tmp_ids = self._tmp_ids, self._ids
             self._step_count += 1
-            _heading_sum(self._head, total)
-            phi[t] = math.sqrt(float(total @ total)) / n
+            total = self._partial.sum(axis=0) if n else np.zeros(3)
+            phi[t] = math.sqrt(float(total @ total)) / max(n, 1)
         return phi

@@ -56,11 +56,12 @@ def main() -> None:
 def _register() -> None:
     from .analyze import analyze
     from .animate import animate
+    from .bench import bench
     from .play import play
     from .run import run
     from .sweep import plot_sweep, sweep
 
-    for command in (run, animate, analyze, sweep, plot_sweep, play):
+    for command in (run, animate, analyze, sweep, plot_sweep, play, bench):
         main.add_command(command)
 
 
