@@ -22,7 +22,8 @@ class Main(click.Group):
             return super().invoke(ctx)
         except ParameterError as err:
             command = self.get_command(ctx, ctx.invoked_subcommand or "")
-            names = {p.name for p in command.params} if command else set()
+            params = command.params if command else []
+            names = {o.lstrip("-").replace("-", "_") for p in params for o in p.opts if o.startswith("--")}
             click.echo(f"Error: {option_name(str(err), names)}", err=True)
             ctx.exit(2)
         except OSError as err:
