@@ -31,14 +31,12 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import json
-import math
 import os
 import platform
 import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
