@@ -286,7 +286,7 @@ def test_cli_sweep_then_plot(tmp_path):
     (["sweep", "missing.toml"], "sweep: cannot read 'missing.toml'"),
     (["sweep", "good.toml", "--serial", "--workers", "2"], "--serial: runs in this process"),
     (["sweep", "good.toml", "--results", "r.txt"], "--results: must end in .nc"),
-    (["plot-sweep", "nothing.nc"], "--results: no such file"),
+    (["plot-sweep", "nothing.nc"], "Error: results: no such file"),
 ])
 def test_cli_errors_are_one_line_and_nothing_is_written(tmp_path, args, text):
     from click.testing import CliRunner
