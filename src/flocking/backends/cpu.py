@@ -628,11 +628,12 @@ class CPUBackend:
     def bytes_needed(model: Model) -> int:
         """Peak memory of a run: the sorted arrays (double-buffered; a written frame lives
         in the spare half), ids, cells, speeds, the delay ring and the sums that prime it,
-        and the histograms (measured: about 85 bytes a particle in 2D with a trajectory
-        being written)."""
+        the histograms, and the id-ordered ``state`` copy a checkpoint takes (measured:
+        86 bytes a particle in 2D with a trajectory being written, no checkpoint)."""
         d = model.dim
         delay = 8 * (model.delay + 1) * (d + 1) + 4 if model.delay else 0
-        per_particle = 32 * d + 12 + (16 if model.speeds == "uniform" else 0) + delay + 16
+        speeds = 24 if model.speeds == "uniform" else 0
+        per_particle = 32 * d + 12 + speeds + delay + 16 * d + 8
         return model.n * per_particle + 4 * (numba.get_num_threads() + 1) * int(np.prod(cell_grid(model)))
 
     def __init__(self, model: Model, state: State, memory: dict | None = None):
