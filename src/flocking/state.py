@@ -24,6 +24,8 @@ import numpy as np
 from . import rng
 from .model import Model, ParameterError
 
+_BLOCK = 1 << 16  # particles drawn at a time by the random constructors
+
 
 @dataclasses.dataclass
 class State:
@@ -37,7 +39,9 @@ class State:
     def __post_init__(self) -> None:
         self.positions = np.ascontiguousarray(self.positions, dtype=np.float64)
         self.headings = np.ascontiguousarray(self.headings, dtype=np.float64)
-        self.speeds = np.ascontiguousarray(self.speeds, dtype=np.float64)
+        speeds = np.asarray(self.speeds, dtype=np.float64)
+        # equal speeds may be one number broadcast to (N,): 0 bytes a particle, read-only
+        self.speeds = speeds if speeds.ndim == 1 and speeds.strides == (0,) else np.ascontiguousarray(speeds)
         n, d = self.positions.shape
         if self.headings.shape != (n, d) or self.speeds.shape != (n,):
             raise ValueError("state: positions, headings and speeds disagree in shape")
@@ -61,17 +65,25 @@ class State:
 
     @classmethod
     def random(cls, model: Model) -> State:
-        """Uniform positions in the box and uniformly random headings."""
-        ids = np.arange(model.n, dtype=np.uint64)
-        positions = np.stack(
-            [rng.uniform(model.seed, 0, ids, rng.POSITION + a) * model.box[a] for a in range(model.dim)],
-            axis=1,
-        )
-        # u * L can round up to L itself: keep the half-open interval
-        positions = np.where(positions >= model.box, 0.0, positions)
-        u0 = rng.uniform(model.seed, 0, ids, rng.HEADING)
-        u1 = rng.uniform(model.seed, 0, ids, rng.HEADING + 1)
-        return cls(positions, random_unit_vectors(model.dim, u0, u1), initial_speeds(model))
+        """Uniform positions in the box and uniformly random headings.
+
+        The arrays are filled a block of particles at a time, so the random numbers'
+        temporaries stay small; each number is a pure function of its keys, so the
+        blocks change no value.
+        """
+        n, d = model.n, model.dim
+        positions, headings = np.empty((n, d)), np.empty((n, d))
+        for lo in range(0, n, _BLOCK):
+            ids = np.arange(lo, min(n, lo + _BLOCK), dtype=np.uint64)
+            block = positions[lo : lo + len(ids)]
+            for a in range(d):
+                block[:, a] = rng.uniform(model.seed, 0, ids, rng.POSITION + a) * model.box[a]
+            # u * L can round up to L itself: keep the half-open interval
+            block[block >= model.box] = 0.0
+            u0 = rng.uniform(model.seed, 0, ids, rng.HEADING)
+            u1 = rng.uniform(model.seed, 0, ids, rng.HEADING + 1)
+            headings[lo : lo + len(ids)] = random_unit_vectors(d, u0, u1)
+        return cls(positions, headings, initial_speeds(model))
 
     @classmethod
     def aligned(cls, model: Model) -> State:
@@ -109,6 +121,21 @@ class State:
         return cls(positions, headings, initial_speeds(model), int(frame.step))
 
 
+def frame_arrays(state: State, box) -> tuple[np.ndarray, np.ndarray]:
+    """Positions centred in the box and ``velocity = speed * heading``, as GSD frames hold
+    them: float32 ``(N, 3)``, z = 0 in 2D.
+
+    >>> points, velocities = frame_arrays(State.aligned(Model(n=3, box=4.0, speed=0.5)), (4.0, 4.0))
+    >>> points.dtype, points.shape, velocities[0].tolist()
+    (dtype('float32'), (3, 3), [0.5, 0.0, 0.0])
+    """
+    points = np.zeros((state.n, 3), dtype=np.float32)
+    points[:, : state.dim] = state.positions - np.asarray(box) / 2
+    velocities = np.zeros((state.n, 3), dtype=np.float32)
+    velocities[:, : state.dim] = state.speeds[:, None] * state.headings
+    return points, velocities
+
+
 def random_unit_vectors(dim: int, u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
     """Unit vectors uniform on the circle (from ``u0``) or the sphere (from ``u0, u1``)."""
     if dim == 2:
@@ -121,8 +148,12 @@ def random_unit_vectors(dim: int, u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
 
 
 def initial_speeds(model: Model) -> np.ndarray:
-    """All ``v0``, or (``speeds="uniform"``) each uniform in ``(0, v0]``."""
+    """All ``v0`` (one number broadcast, read-only), or (``speeds="uniform"``) each
+    uniform in ``(0, v0]``."""
     if model.speeds == "constant":
-        return np.full(model.n, model.speed)
-    u = rng.uniform(model.seed, 0, np.arange(model.n, dtype=np.uint64), rng.SPEED)
-    return model.speed * (1.0 - u)
+        return np.broadcast_to(np.float64(model.speed), (model.n,))
+    speeds = np.empty(model.n)
+    for lo in range(0, model.n, _BLOCK):
+        ids = np.arange(lo, min(model.n, lo + _BLOCK), dtype=np.uint64)
+        speeds[lo : lo + len(ids)] = model.speed * (1.0 - rng.uniform(model.seed, 0, ids, rng.SPEED))
+    return speeds

@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import os
 
-import gsd.hoomd
 import numpy as np
 
 from .trajectory import PARAMETERS_KEY
@@ -50,12 +49,30 @@ class Writer:
         """Flush and release files."""
 
 
+#: The chunks of a frame, in gsd.hoomd's order, with the value gsd.hoomd leaves out (a
+#: reader fills it in): the frame's own chunks are N-sized and all zero by default.
+_DEFAULTS = {
+    "configuration/step": np.zeros(1, dtype=np.uint64),
+    "configuration/dimensions": np.array([3], dtype=np.uint8),
+    "configuration/box": np.array([1, 1, 1, 0, 0, 0], dtype=np.float32),
+    "particles/N": np.zeros(1, dtype=np.uint32),
+    "particles/position": None,
+    "particles/velocity": None,
+}
+_HEAD = 64  # values of frame 0's large chunks kept to tell a frame from it without reading it
+
+
 class GSDWriter(Writer):
     """Frames in HOOMD/GSD conventions: positions centred, ``velocity = speed * heading``.
 
     Frame 0 carries the parameters of the run (log entry ``flocking/parameters``, JSON).
     In 2D the box has ``Lz = 1`` and every z is 0, as HOOMD and MDAnalysis expect; the
     frame's ``configuration.dimensions`` says 2.
+
+    Frames go through the file layer (``gsd.fl``) with exactly the chunks that
+    ``gsd.hoomd`` would write: a chunk is left out when it equals frame 0's (or, absent
+    from frame 0, its default). The arrays come from the backend's ``frame_arrays()``
+    (the CPU backend's spare buffers), so writing a frame allocates nothing per particle.
     """
 
     def __init__(self, path: str | os.PathLike, every: int = 100, mode: str = "w"):
@@ -64,40 +81,82 @@ class GSDWriter(Writer):
         self.mode = mode
         self._file = None
         self._last = None
+        self._first: dict[str, np.ndarray] = {}  # frame 0's chunks (the head of large ones)
+        self._shapes: dict[str, tuple] = {}
 
     def begin(self, sim) -> None:
         if self._file is None:
-            self._file = gsd.hoomd.open(self.path, mode=self.mode)
-            self._parameters = json.dumps(sim.parameters()).encode()
-            if len(self._file):
-                self._last = int(self._file[-1].configuration.step)
+            import gsd.fl
+            import gsd.version
+
+            self._file = gsd.fl.open(self.path, mode=self.mode, application="gsd.hoomd " + gsd.version.version,
+                                     schema="hoomd", schema_version=[2, 0])
+            if self._file.schema != "hoomd":
+                self._file.close()
+                self._file = None
+                raise RuntimeError(f"GSD file is not a hoomd schema file: {self.path}")
+            self._parameters = np.frombuffer(json.dumps(sim.parameters()).encode(), dtype=np.uint8)
+            if self._file.nframes:
+                for name in _DEFAULTS:
+                    if self._file.chunk_exists(frame=0, name=name):
+                        self._remember(name, self._file.read_chunk(frame=0, name=name))
+                self._last = int(self._read_last("configuration/step")[0])
+
+    def _read_last(self, name: str) -> np.ndarray:
+        """A chunk of the last frame, as a reader sees it (from frame 0, or the default)."""
+        last = self._file.nframes - 1
+        if self._file.chunk_exists(frame=last, name=name):
+            return self._file.read_chunk(frame=last, name=name)
+        return self._first.get(name, _DEFAULTS[name])
+
+    def _remember(self, name: str, data: np.ndarray) -> None:
+        large = _DEFAULTS[name] is None
+        self._first[name] = data.reshape(-1)[:_HEAD].copy() if large else data.copy()
+        self._shapes[name] = data.shape
+
+    def _differs(self, name: str, data: np.ndarray) -> bool:
+        """Whether gsd.hoomd would write ``data``: it differs from frame 0's chunk, or,
+        where frame 0 has none, from the default."""
+        default = _DEFAULTS[name]
+        if name not in self._first:
+            return bool(data.any()) if default is None else not np.array_equiv(data, default)
+        first = self._first[name]
+        if default is None:  # large: compare the head, and only if that matches, all of it
+            if data.shape != self._shapes[name] or not np.array_equal(data.reshape(-1)[:_HEAD], first):
+                return True
+            return not np.array_equal(data, self._file.read_chunk(frame=0, name=name))
+        return not np.array_equal(data, first)
 
     def write(self, sim) -> None:
         if self._last is not None and sim.step <= self._last:
             return  # appending to a file that already holds this step
-        state = sim.state
         model = sim.model
-        frame = gsd.hoomd.Frame()
-        frame.configuration.step = state.step
-        frame.configuration.dimensions = model.dim
-        box = np.zeros(6)
-        box[:3] = 1.0
+        # in double precision, as gsd.hoomd compares it (a box that float32 cannot hold
+        # exactly differs from frame 0's and is written in every frame); stored in single
+        box = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
         box[: model.dim] = model.box
-        frame.configuration.box = box
-        frame.particles.N = state.n
-        frame.particles.types = ["A"]
-        frame.particles.typeid = np.zeros(state.n, dtype=np.uint32)
-        points = np.zeros((state.n, 3), dtype=np.float32)
-        points[:, : model.dim] = state.positions - np.asarray(model.box) / 2
-        velocities = np.zeros((state.n, 3), dtype=np.float32)
-        velocities[:, : model.dim] = state.speeds[:, None] * state.headings
-        frame.particles.position = points
-        frame.particles.velocity = velocities
-        if len(self._file) == 0:
-            frame.log[PARAMETERS_KEY] = np.frombuffer(self._parameters, dtype=np.uint8)
-        self._file.append(frame)
+        points, velocities = sim.backend.frame_arrays()
+        chunks = {
+            "configuration/step": np.array([sim.step], dtype=np.uint64),
+            "configuration/dimensions": np.array([model.dim], dtype=np.uint8),
+            "configuration/box": box,
+            "particles/N": np.array([model.n], dtype=np.uint32),
+            "particles/position": points,
+            "particles/velocity": velocities,
+        }
+        fresh = self._file.nframes == 0
+        for name, data in chunks.items():
+            if self._differs(name, data):
+                self._file.write_chunk(name, data.astype(np.float32) if name == "configuration/box" else data)
+        if fresh:
+            self._file.write_chunk("log/" + PARAMETERS_KEY, self._parameters)
+        self._file.end_frame()
         self._file.flush()
-        self._last = state.step
+        if fresh:
+            for name, data in chunks.items():
+                if self._file.chunk_exists(frame=0, name=name):
+                    self._remember(name, self._file.read_chunk(frame=0, name=name) if data.size < _HEAD else data)
+        self._last = sim.step
 
     def close(self) -> None:
         if self._file is not None:

@@ -2,8 +2,11 @@
 
 A backend is built from ``(model, state, memory=None)`` and offers ``advance(steps)`` (take that many
 steps, return the polar order after each), ``state`` (a copy, in particle-id order),
-``step``, ``name`` and ``memory()``: what it remembers beyond the state (the delay
-history), which a checkpoint saves and ``memory=`` restores. Every backend draws the same counter-based random numbers, so from the same
+``step``, ``name``, ``memory()``: what it remembers beyond the state (the delay
+history), which a checkpoint saves and ``memory=`` restores, and ``frame_arrays()``: the
+centred positions and velocities a GSD frame holds, float32 ``(N, 3)`` in id order, valid
+until the next ``advance`` (the CPU backend lends its spare buffers: a frame costs no
+memory). Every backend draws the same counter-based random numbers, so from the same
 state they take the same step to rounding.
 
 >>> sorted(NAMES)

@@ -601,6 +601,24 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
             partial[b, 2] = pz
 
 
+@numba.njit(cache=True, parallel=True)
+def _frame(pos, head, spd, ids, box, points, velocities):
+    """``points[id] = pos - L/2`` and ``velocities[id] = speed * head`` (float32, z = 0 in 2D),
+    rounded from the same doubles as NumPy would."""
+    d, n = pos.shape
+    per_particle = spd.shape[0] == n and n > 1
+    for s in numba.prange(n):
+        i = ids[s]
+        v = spd[s] if per_particle else spd[0]
+        for a in range(3):
+            if a < d:
+                points[i, a] = np.float32(pos[a, s] - box[a] / 2.0)
+                velocities[i, a] = np.float32(v * head[a, s])
+            else:
+                points[i, a] = np.float32(0.0)
+                velocities[i, a] = np.float32(0.0)
+
+
 class CPUBackend:
     """Cell lists and numba threads; bitwise reproducible for any ``NUMBA_NUM_THREADS``."""
 
@@ -608,11 +626,14 @@ class CPUBackend:
 
     @staticmethod
     def bytes_needed(model: Model) -> int:
-        """Peak memory of a run: the sorted arrays (double-buffered), cells and histograms,
-        the delay ring, and the id-ordered copies a writer takes of a frame (measured: about
-        350 bytes a particle in 2D with a trajectory being written)."""
+        """Peak memory of a run: the sorted arrays (double-buffered; a written frame lives
+        in the spare half), ids, cells, speeds, the delay ring and the sums that prime it,
+        the histograms, and the id-ordered ``state`` copy a checkpoint takes (measured:
+        86 bytes a particle in 2D with a trajectory being written, no checkpoint)."""
         d = model.dim
-        per_particle = 40 * d + 48 + 8 * model.delay * (d + 1) + 24 * (2 * d + 1) + 48
+        delay = 8 * (model.delay + 1) * (d + 1) + 4 if model.delay else 0
+        speeds = 24 if model.speeds == "uniform" else 0
+        per_particle = 32 * d + 12 + speeds + delay + 16 * d + 8
         return model.n * per_particle + 4 * (numba.get_num_threads() + 1) * int(np.prod(cell_grid(model)))
 
     def __init__(self, model: Model, state: State, memory: dict | None = None):
@@ -627,10 +648,12 @@ class CPUBackend:
         self._hist = np.zeros((numba.get_num_threads(), self._ncells), dtype=itype)
         self._cell = np.empty(n, dtype=ctype)
         self._pos, self._head = np.empty((d, n)), np.empty((d, n))
-        self._new_pos, self._new_head = np.empty((d, n)), np.empty((d, n))
+        # the other half of the double buffer, allocated when first needed: a state made
+        # only to start a simulation is gone by then
+        self._spare = None
         self._ids, self._tmp_ids = np.empty(n, dtype=itype), np.empty(n, dtype=itype)
         speeds = state.speeds
-        if n and np.all(speeds == speeds[0]):
+        if n and (speeds.strides == (0,) or np.all(speeds == speeds[0])):
             self._spd, self._tmp_spd = speeds[:1].copy(), speeds[:1].copy()  # one number
         else:
             self._spd, self._tmp_spd = np.empty(n), np.empty(n)
@@ -655,11 +678,11 @@ class CPUBackend:
         return {"ring": self._ring.copy()} if self.model.delay else {}
 
     def _load(self, state: State, memory: dict | None) -> None:
-        pos = np.ascontiguousarray(state.positions.T)
+        # the kernels read the (N, d) arrays through transposed views: no copies
+        pos = state.positions.T
         _cells(pos, self._nc, self._nc / self._box, self._cell)
-        spd = state.speeds if self._spd.shape[0] > 1 else self._tmp_spd
-        self._sort_into(pos, np.ascontiguousarray(state.headings.T), spd,
-                        np.arange(state.n, dtype=self._ids.dtype), self._spd, self._ids)
+        spd = np.ascontiguousarray(state.speeds) if self._spd.shape[0] > 1 else self._tmp_spd
+        self._sort_into(pos, state.headings.T, spd, np.arange(state.n, dtype=self._ids.dtype), self._spd, self._ids)
         if memory:
             self._ring[:] = memory["ring"]
         elif self.model.delay:
@@ -671,6 +694,13 @@ class CPUBackend:
         _sort(self._cell, hist, self._start)
         _scatter(self._cell, hist, pos, head, spd, ids, self._pos, self._head, spd2, ids2)
         _by_id_within_cells(self._start, self._pos, self._head, spd2, ids2)
+
+    def _scratch(self) -> tuple[np.ndarray, np.ndarray]:
+        """The spare half of the double buffer ``(new_pos, new_head)``: written by a step,
+        free between steps."""
+        if self._spare is None:
+            self._spare = np.empty_like(self._pos), np.empty_like(self._head)
+        return self._spare
 
     def _prime_delay(self) -> None:
         """Fill every ring slot with the current sums: the initial state stands in for the past."""
@@ -684,7 +714,7 @@ class CPUBackend:
         params = self._params.copy()
         params[5] = 1.0  # record the sums in a one-slot ring; the step itself is thrown away
         _step(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
-              np.empty_like(self._pos), np.empty_like(self._head), self._cell.copy(), ring, 0,
+              *self._scratch(), self._cell.copy(), ring, 0,
               self._step_count, self._seed, params, self._partial.copy(), numba.get_num_threads())
         return ring[0]
 
@@ -701,20 +731,35 @@ class CPUBackend:
             spd = np.empty(n)
             spd[self._ids] = self._spd
         else:
-            spd = np.full(n, self._spd[0] if n else 0.0)
+            spd = np.broadcast_to(self._spd[0] if n else 0.0, (n,))
         return State(pos, head, spd, self._step_count)
+
+    def frame_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centred positions and velocities as GSD frames hold them: float32 ``(N, 3)`` in
+        particle-id order, z = 0 in 2D (what :func:`flocking.state.frame_arrays` gives).
+
+        They live in the spare half of the double buffer (``2 x d x N`` doubles, room for
+        both), so a frame costs no memory; they are valid until the next :meth:`advance`.
+        """
+        n = self._pos.shape[1]
+        new_pos, new_head = self._scratch()
+        points = new_pos.reshape(-1).view(np.float32)[: 3 * n].reshape(n, 3)
+        velocities = new_head.reshape(-1).view(np.float32)[: 3 * n].reshape(n, 3)
+        _frame(self._pos, self._head, self._spd, self._ids, self._box, points, velocities)
+        return points, velocities
 
     def advance(self, steps: int) -> np.ndarray:
         """Take ``steps`` steps; return the polar order after each."""
         d, n = self._pos.shape
         phi = np.empty(steps)
         delay = self.model.delay
+        new_pos, new_head = self._scratch()
         for t in range(steps):
             slot = self._step_count % delay if delay else 0
             _step(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
-                  self._new_pos, self._new_head, self._cell, self._ring, slot, self._step_count,
+                  new_pos, new_head, self._cell, self._ring, slot, self._step_count,
                   self._seed, self._params, self._partial, numba.get_num_threads())
-            self._sort_into(self._new_pos, self._new_head, self._spd, self._ids, self._tmp_spd, self._tmp_ids)
+            self._sort_into(new_pos, new_head, self._spd, self._ids, self._tmp_spd, self._tmp_ids)
             self._spd, self._tmp_spd = self._tmp_spd, self._spd
             self._ids, self._tmp_ids = self._tmp_ids, self._ids
             self._step_count += 1

@@ -33,7 +33,7 @@ import warnings
 import numpy as np
 
 from ..model import Model, ParameterError
-from ..state import State
+from ..state import State, frame_arrays
 from .cpu import cell_grid
 
 PRECISIONS = ("float64", "float32")
@@ -206,6 +206,10 @@ class CUDABackend:
         k.reduce[1, block](self._partial, phi, row)
 
     # -- public surface --------------------------------------------------------------
+
+    def frame_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centred positions and velocities, float32 ``(N, 3)`` in id order (a GSD frame's)."""
+        return frame_arrays(self.state, self.model.box)
 
     @property
     def step(self) -> int:

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import rng
 from ..model import Model
-from ..state import State, random_unit_vectors
+from ..state import State, frame_arrays, random_unit_vectors
 
 
 def minimum_image(displacement: np.ndarray, box: np.ndarray) -> np.ndarray:
@@ -147,6 +147,10 @@ class ReferenceBackend:
     @property
     def state(self) -> State:
         return self._state.copy()
+
+    def frame_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centred positions and velocities, float32 ``(N, 3)`` in id order (a GSD frame's)."""
+        return frame_arrays(self._state, self.model.box)
 
     @property
     def step(self) -> int:
