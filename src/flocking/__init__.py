@@ -8,11 +8,18 @@
 (500, 2)
 """
 
-from .model import Model, ParameterError
-from .simulation import Simulation
-from .state import State
-from .trajectory import Frame, Trajectory, open
-from .writers import CheckpointWriter, GSDWriter, ObservablesWriter, Writer
+import os
+
+# LLVM's SLP vectoriser (off in numba by default) packs the independent summation lanes of
+# the CPU kernels into SIMD registers. It never reorders an addition, so results do not
+# depend on it; only speed does. It must be set before numba reads its configuration.
+os.environ.setdefault("NUMBA_SLP_VECTORIZE", "1")
+
+from .model import Model, ParameterError  # noqa: E402
+from .simulation import Simulation  # noqa: E402
+from .state import State  # noqa: E402
+from .trajectory import Frame, Trajectory, open  # noqa: E402
+from .writers import CheckpointWriter, GSDWriter, ObservablesWriter, Writer  # noqa: E402
 
 __version__ = "0.1.0"
 

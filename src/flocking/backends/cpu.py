@@ -308,55 +308,87 @@ def _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d):
     return m
 
 
-@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
+@numba.njit(cache=True, inline="always")
+def _term_2d(buf, j, xi, yi, r2):
+    """Candidate ``j``'s heading and 1 if it is within ``R`` of ``(xi, yi)``, else zeros."""
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    w = 1.0 if dx * dx + dy * dy < r2 else 0.0
+    return buf[2, j] * w, buf[3, j] * w, w
+
+
+@numba.njit(cache=True, inline="always")
+def _term_3d(buf, j, xi, yi, zi, r2):
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    dz = buf[2, j] - zi
+    w = 1.0 if dx * dx + dy * dy + dz * dz < r2 else 0.0
+    return buf[3, j] * w, buf[4, j] * w, buf[5, j] * w, w
+
+
+# The reductions sum in four interleaved lanes (candidate j goes to lane j % 4), then the
+# lanes in a fixed order: independent chains that LLVM's SLP vectoriser packs into SIMD
+# registers without reordering any addition, so the result is fixed by this source.
+# (Letting the optimiser reassociate, fastmath-style, vectorised too, but code compiled in
+# one process and code loaded from numba's cache then rounded differently: a first run and
+# a second run of the same seed differed in the last bits.)
+
+
+@numba.njit(cache=True)
 def _reduce_2d(buf, m, x, y, i0, i1, r2, out):
     """For slots ``i0..i1``: sum of headings and count of the buffered candidates within
-    ``R`` (self included) into ``out[:, i - i0]``.
-
-    ``reassoc`` lets the sums vectorise: their order then depends on the vector width of
-    the machine, never on the thread count.
-    """
+    ``R`` (self included) into ``out[:, i - i0]``."""
+    m4 = m - m % 4
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
-        sx = 0.0
-        sy = 0.0
-        n = 0.0
-        for j in range(m):
-            dx = buf[0, j] - xi
-            dy = buf[1, j] - yi
-            w = 1.0 if dx * dx + dy * dy < r2 else 0.0
-            sx += buf[2, j] * w
-            sy += buf[3, j] * w
-            n += w
-        out[0, i - i0] = sx
-        out[1, i - i0] = sy
-        out[2, i - i0] = n
+        a0 = a1 = a2 = a3 = 0.0
+        b0 = b1 = b2 = b3 = 0.0
+        n0 = n1 = n2 = n3 = 0.0
+        for j in range(0, m4, 4):
+            p0, q0, w0 = _term_2d(buf, j, xi, yi, r2)
+            p1, q1, w1 = _term_2d(buf, j + 1, xi, yi, r2)
+            p2, q2, w2 = _term_2d(buf, j + 2, xi, yi, r2)
+            p3, q3, w3 = _term_2d(buf, j + 3, xi, yi, r2)
+            a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+            b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+            n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
+        for j in range(m4, m):
+            p0, q0, w0 = _term_2d(buf, j, xi, yi, r2)
+            a0, b0, n0 = a0 + p0, b0 + q0, n0 + w0
+        out[0, i - i0] = (a0 + a1) + (a2 + a3)
+        out[1, i - i0] = (b0 + b1) + (b2 + b3)
+        out[2, i - i0] = (n0 + n1) + (n2 + n3)
 
 
-@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
+@numba.njit(cache=True)
 def _reduce_3d(buf, m, x, y, z, i0, i1, r2, out):
+    """As :func:`_reduce_2d`, in 3D."""
+    m4 = m - m % 4
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
         zi = z[i]
-        sx = 0.0
-        sy = 0.0
-        sz = 0.0
-        n = 0.0
-        for j in range(m):
-            dx = buf[0, j] - xi
-            dy = buf[1, j] - yi
-            dz = buf[2, j] - zi
-            w = 1.0 if dx * dx + dy * dy + dz * dz < r2 else 0.0
-            sx += buf[3, j] * w
-            sy += buf[4, j] * w
-            sz += buf[5, j] * w
-            n += w
-        out[0, i - i0] = sx
-        out[1, i - i0] = sy
-        out[2, i - i0] = sz
-        out[3, i - i0] = n
+        a0 = a1 = a2 = a3 = 0.0
+        b0 = b1 = b2 = b3 = 0.0
+        c0 = c1 = c2 = c3 = 0.0
+        n0 = n1 = n2 = n3 = 0.0
+        for j in range(0, m4, 4):
+            p0, q0, r0, w0 = _term_3d(buf, j, xi, yi, zi, r2)
+            p1, q1, r1, w1 = _term_3d(buf, j + 1, xi, yi, zi, r2)
+            p2, q2, r2_, w2 = _term_3d(buf, j + 2, xi, yi, zi, r2)
+            p3, q3, r3, w3 = _term_3d(buf, j + 3, xi, yi, zi, r2)
+            a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+            b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+            c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
+            n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
+        for j in range(m4, m):
+            p0, q0, r0, w0 = _term_3d(buf, j, xi, yi, zi, r2)
+            a0, b0, c0, n0 = a0 + p0, b0 + q0, c0 + r0, n0 + w0
+        out[0, i - i0] = (a0 + a1) + (a2 + a3)
+        out[1, i - i0] = (b0 + b1) + (b2 + b3)
+        out[2, i - i0] = (c0 + c1) + (c2 + c3)
+        out[3, i - i0] = (n0 + n1) + (n2 + n3)
 
 
 @numba.njit(cache=True, inline="always")
