@@ -306,3 +306,11 @@ def test_freshly_compiled_and_cached_kernels_give_the_same_bits(tmp_path):
         subprocess.run([sys.executable, "-c", COMPILE_SCRIPT, str(path)], check=True, env=env)
         results.append(np.load(path))
     assert np.array_equal(results[0], results[1])
+
+
+def test_vectoriser_setting_applies_even_if_numba_was_imported_first():
+    code = "import numba, flocking; print(numba.config.SLP_VECTORIZE)"
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_SLP_VECTORIZE"}
+    env["PYTHONPATH"] = SRC
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "1"

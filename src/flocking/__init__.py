@@ -9,11 +9,15 @@
 """
 
 import os
+import sys
 
 # LLVM's SLP vectoriser (off in numba by default) packs the independent summation lanes of
 # the CPU kernels into SIMD registers. It never reorders an addition, so results do not
-# depend on it; only speed does. It must be set before numba reads its configuration.
-os.environ.setdefault("NUMBA_SLP_VECTORIZE", "1")
+# depend on it; only speed does (and numba's cache keeps whichever code it compiled first).
+if "NUMBA_SLP_VECTORIZE" not in os.environ:
+    os.environ["NUMBA_SLP_VECTORIZE"] = "1"
+    if "numba" in sys.modules:  # imported before us: make numba read its settings again
+        sys.modules["numba"].config.reload_config()
 
 from .model import Model, ParameterError  # noqa: E402
 from .simulation import Simulation  # noqa: E402
