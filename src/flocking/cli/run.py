@@ -176,6 +176,9 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     # a file-size limit then raises OSError (EFBIG) like a full disk, instead of killing us
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    compiled = warm_up(cfg)
+    if compiled > 1.0 and not quiet:
+        click.echo(f"flocking: compiled the kernels in {compiled:.0f} s (once: numba caches them)", err=True)
     start, first = time.perf_counter(), sim.step
     try:
         sim.run(sim.origin + cfg.steps - sim.step, progress=not quiet and sys.stderr.isatty())
@@ -192,6 +195,18 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
         rate = done * cfg.model.n / elapsed if elapsed > 0 else float("inf")
         click.echo(f"flocking: {done} steps in {elapsed:.2f} s ({rate:.3g} particle-steps/s), "
                    f"polar order {sim.polar_order[-1]:.3f}; wrote {out}", err=True)
+
+
+def warm_up(cfg: RunConfig) -> float:
+    """Run two steps of a tiny copy of the model, so that numba compiles (or loads) the
+    kernels before the timed run; returns the seconds it took."""
+    from ..simulation import Simulation
+    from ..state import State
+
+    start = time.perf_counter()
+    tiny = cfg.model.replace(n=min(cfg.model.n, 64), density=cfg.model.density)
+    Simulation(tiny, State.random(tiny), backend=cfg.backend, **cfg.backend_options()).run(2)
+    return time.perf_counter() - start
 
 
 def _write_atomic(path: str, text: str) -> None:
