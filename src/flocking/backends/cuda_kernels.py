@@ -447,6 +447,19 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
                 b -= 1
             order[b] = v
 
+    @cuda.jit(device=True)
+    def block_sum(buf, tid):
+        """Tree sum of the shared ``buf[:, :BLOCK]`` into ``buf[:, 0]``, in a fixed order;
+        every thread of the block calls it."""
+        cuda.syncthreads()
+        stride = BLOCK // 2
+        while stride > 0:
+            if tid < stride:
+                for a in range(DIM):
+                    buf[a, tid] += buf[a, tid + stride]
+            cuda.syncthreads()
+            stride //= 2
+
     @cuda.jit
     def gather(order, pos, head, spd, ids, pos2, head2, spd2, ids2, partial):
         """``x2[:, s] = x[:, order[s]]``; each block's heading sum (float64) into ``partial``."""
@@ -463,14 +476,7 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
                 buf[a, tid] = np.float64(head[a, i])
             spd2[s] = spd[i]
             ids2[s] = ids[i]
-        cuda.syncthreads()
-        stride = BLOCK // 2
-        while stride > 0:
-            if tid < stride:
-                for a in range(DIM):
-                    buf[a, tid] += buf[a, tid + stride]
-            cuda.syncthreads()
-            stride //= 2
+        block_sum(buf, tid)
         if tid == 0:
             for a in range(DIM):
                 partial[a, cuda.blockIdx.x] = buf[a, 0]
@@ -485,14 +491,7 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
             for b in range(tid, partial.shape[1], BLOCK):
                 acc += partial[a, b]
             buf[a, tid] = acc
-        cuda.syncthreads()
-        stride = BLOCK // 2
-        while stride > 0:
-            if tid < stride:
-                for a in range(DIM):
-                    buf[a, tid] += buf[a, tid + stride]
-            cuda.syncthreads()
-            stride //= 2
+        block_sum(buf, tid)
         if tid == 0:
             for a in range(DIM):
                 out[row, a] = buf[a, 0]
