@@ -13,6 +13,8 @@ import os
 
 import gsd.hoomd
 
+from .files import write_text
+
 
 def rewind(folder: str, step: int, origin: int, every: int) -> None:
     """Trim ``trajectory.gsd`` and ``observables.csv`` of ``folder`` to ``step``."""
@@ -54,7 +56,4 @@ def rewind_observables(path: str, step: int) -> None:
         if int(fields[0]) > step:
             break
         kept.append(line)
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write("\n".join(kept) + "\n")
-    os.replace(tmp, path)
+    write_text(path, "\n".join(kept) + "\n")

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from . import backends
+from .files import replace_atomically
 from .model import Model, ParameterError
 from .state import State
 
@@ -132,18 +133,8 @@ class Simulation:
         arrays = {"positions": state.positions, "headings": state.headings, "speeds": state.speeds,
                   "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)}
         arrays.update({f"memory_{k}": v for k, v in self.backend.memory().items()})
-        path = os.fspath(path)
-        tmp = path + ".tmp"
-        try:
-            with open(tmp, "wb") as f:
-                np.savez(f, **arrays)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-            raise
+        with replace_atomically(path, "wb") as f:
+            np.savez(f, **arrays)
 
     @classmethod
     def load_checkpoint(cls, path: str | os.PathLike, history: bool = True) -> Simulation:

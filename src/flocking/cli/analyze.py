@@ -8,6 +8,7 @@ import os
 
 import click
 
+from ..files import replace_atomically
 from ..model import ParameterError
 
 QUANTITIES = ("polar", "fluctuations", "correlation", "profile", "clusters", "boxcount", "msd")
@@ -159,20 +160,16 @@ def analyze(run_dir, only, start, frames, radius, r_max, dr, method, out, no_plo
 
 def write_csv(path: str, obj, columns) -> None:
     values = [getattr(obj, attr) for _, attr in columns]
-    tmp = path + ".tmp"
-    with open(tmp, "w", newline="", encoding="utf-8") as f:
+    with replace_atomically(path, newline="") as f:
         writer = csv.writer(f)
         writer.writerow([h for h, _ in columns])
         for row in zip(*[v.tolist() for v in values]):
             writer.writerow([int(x) if isinstance(x, bool) else x for x in row])
-    os.replace(tmp, path)
 
 
 def write_json(path: str, data: dict) -> None:
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
+    with replace_atomically(path) as f:
         json.dump(data, f, indent=1)
-    os.replace(tmp, path)
 
 
 def plot(obj, path: str) -> None:

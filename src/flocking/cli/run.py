@@ -10,6 +10,7 @@ import time
 import click
 
 from ..config import RunConfig
+from ..files import write_text
 from ..model import CHOICES, ParameterError
 
 #: option name -> help; every model parameter of MODEL.md, same words as the docs
@@ -155,7 +156,7 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
     mode = "a" if append else "w"
     sim.info["run"] = {k: v for k, v in cfg.to_dict().items() if k in ("every", "init")}
     os.makedirs(out, exist_ok=True)
-    _write_atomic(os.path.join(out, "config.toml"), cfg.to_toml())
+    write_text(os.path.join(out, "config.toml"), cfg.to_toml())
     sim.writers.append(GSDWriter(os.path.join(out, "trajectory.gsd"), every=cfg.every, mode=mode))
     sim.writers.append(ObservablesWriter(os.path.join(out, "observables.csv"), mode=mode))
     sim.writers.append(CheckpointWriter(os.path.join(out, "checkpoint.npz"), every=cfg.checkpoint_every))
@@ -207,12 +208,3 @@ def warm_up(cfg: RunConfig) -> float:
     tiny = cfg.model.replace(n=min(cfg.model.n, 64), density=cfg.model.density)
     Simulation(tiny, State.random(tiny), backend=cfg.backend, **cfg.backend_options()).run(2)
     return time.perf_counter() - start
-
-
-def _write_atomic(path: str, text: str) -> None:
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)

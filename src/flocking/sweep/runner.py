@@ -31,6 +31,7 @@ import time
 import traceback
 from typing import Any, Callable
 
+from ..files import write_text
 from .spec import Point, SweepSpec
 
 POINTS = "points"
@@ -80,7 +81,7 @@ def measure(task: dict[str, Any]) -> dict[str, Any]:
     if task.get("trajectory"):
         folder = os.path.dirname(task["trajectory"])
         os.makedirs(folder, exist_ok=True)
-        write_atomic(os.path.join(folder, "config.toml"), cfg.to_toml())
+        write_text(os.path.join(folder, "config.toml"), cfg.to_toml())
         sim.info["run"] = {"steps": cfg.steps, "every": cfg.every, "init": cfg.to_dict()["init"]}
         sim.writers.append(GSDWriter(task["trajectory"], every=cfg.every))
     sim.run(cfg.steps)
@@ -115,17 +116,7 @@ class PointStore:
 
     def save(self, record: dict[str, Any]) -> None:
         os.makedirs(self.folder, exist_ok=True)
-        write_atomic(self.path(record["id"]), json.dumps(record, indent=1))
-
-
-def write_atomic(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` so that readers see the old file or the new one, never half."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+        write_text(self.path(record["id"]), json.dumps(record, indent=1))
 
 
 def execute(spec: SweepSpec, out: str | os.PathLike, *, serial: bool = False, scheduler: str | None = None,
@@ -142,7 +133,7 @@ def execute(spec: SweepSpec, out: str | os.PathLike, *, serial: bool = False, sc
     points = list({p.id: p for p in spec.points()}.values())
     todo = [p for p in points if not store.is_done(p.id)]
     os.makedirs(store.folder, exist_ok=True)
-    write_atomic(os.path.join(out, "sweep.toml"), spec.text)
+    write_text(os.path.join(out, "sweep.toml"), spec.text)
     summary = {"points": len(points), "skipped": len(points) - len(todo), "done": 0, "failed": 0,
                "failures": [], "where": "in-process" if serial else scheduler or "local cluster"}
     if not todo:
