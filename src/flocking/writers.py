@@ -180,7 +180,7 @@ class ObservablesWriter(Writer):
             self._file = open(self.path, self.mode, encoding="utf-8")
             if fresh:
                 self._file.write(",".join(self.columns) + "\n")
-                self._file.write(f"{sim.step},{sim.state.polar_order()!r}\n")
+                self._file.write(f"{sim.step},{sim.polar_order[-1]!r}\n")
                 self._file.flush()
 
     def observe(self, steps: np.ndarray, phi: np.ndarray) -> None:
