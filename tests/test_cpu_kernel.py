@@ -31,6 +31,9 @@ CASES = {
     "uniform-speeds": dict(n=300, box=12.0, speeds="uniform", speed=1.3),
     "rectangle": dict(n=300, box=(20.0, 7.5)),
     "box-3d": dict(dim=3, n=300, box=(8.0, 5.0, 4.0)),
+    # lines of more than one work segment (64 columns of cells)
+    "long-2d": dict(n=3000, box=(150.0, 10.0)),
+    "long-3d": dict(dim=3, n=2000, box=(140.0, 4.0, 3.5)),
     "small-box": dict(n=200, box=(2.5, 9.0), radius=1.0),
     "tiny-box-3d": dict(dim=3, n=200, box=2.0, radius=1.2),
     "huge-radius": dict(n=200, box=4.0, radius=3.5),
@@ -99,6 +102,18 @@ def test_clustered_dense_state_matches_reference():
         ref.advance(1)
         assert_same(cpu.state, ref.state)
         cpu = CPUBackend(model, ref.state)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_crowded_lines_grow_the_buffer_and_match_reference(dim):
+    """Thousands of particles within one cell: the kernel's candidate buffer (4096
+    entries to start with) must grow, and every sum still matches."""
+    model = Model(n=6000, dim=dim, box=10.0 if dim == 2 else 5.0, noise=0.3, seed=8)
+    state = State.random(model)
+    state.positions[:5000] = np.random.default_rng(1).uniform(2.0, 2.9, size=(5000, dim))
+    cpu, ref = CPUBackend(model, state), ReferenceBackend(model, state)
+    np.testing.assert_allclose(cpu.advance(1), ref.advance(1), rtol=0, atol=1e-12)
+    assert_same(cpu.state, ref.state)
 
 
 def test_cell_grid_is_capped():

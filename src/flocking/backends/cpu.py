@@ -56,7 +56,8 @@ from ..model import Model
 from ..state import State  # noqa: E402
 from .kernels import minimum_image, update_2d, update_3d, wrap  # noqa: E402
 
-_BLOCK = 512  # slots per block of the parallel loops; fixed, so results do not depend on threads
+_BLOCK = 512  # slots per block of the search kernel; fixed, so results do not depend on threads
+_SEGMENT = 64  # columns of cells per unit of work of the metric kernel
 _SCAN = 4096  # cells per block of the parallel prefix sum
 
 
@@ -241,38 +242,17 @@ def _neighbour_row(g, n, length):
     return g, 0.0
 
 
-@numba.njit(cache=True, inline="always")
-def _x_ranges(row0, cx, nx, start, lx):
-    """The three cells around column ``cx`` of a row as at most two contiguous slot ranges
-    ``(lo, hi, shift)``; the second is empty unless the row wraps around x."""
-    if cx == 0:
-        return (start[row0], start[row0 + 2], 0.0, start[row0 + nx - 1], start[row0 + nx], -lx)
-    if cx == nx - 1:
-        return (start[row0 + nx - 2], start[row0 + nx], 0.0, start[row0], start[row0 + 1], lx)
-    return (start[row0 + cx - 1], start[row0 + cx + 2], 0.0, 0, 0, 0.0)
-
-
-@numba.njit(cache=True)
-def _candidates(c, start, nc, d):
-    """Number of particles in the 3^d cells around cell ``c`` (fast grids only)."""
-    nx, ny = nc[0], nc[1]
-    cx = c % nx
-    cy = (c // nx) % ny
-    cz = c // (nx * ny) if d == 3 else 0
-    m = 0
-    for oz in range(-1 if d == 3 else 0, 2 if d == 3 else 1):
-        gz = (cz + oz) % nc[d - 1]
-        for oy in range(-1, 2):
-            gy = (cy + oy) % ny
-            lo, hi, _, lo2, hi2, _ = _x_ranges((gz * ny + gy) * nx, cx, nx, start, 0.0)
-            m += (hi - lo) + (hi2 - lo2)
-    return m
+_U1 = np.uint64(1)
+_ALL = np.uint64(2**64 - 1)  # a `last` that masks nothing
 
 
 @numba.njit(cache=True, inline="always")
 def _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d):
-    """Append slots ``lo..hi`` to the candidate buffer, periodic shift applied."""
-    for j in range(lo, hi):
+    """Append slots ``lo..hi`` to the buffer at ``m``, periodic shifts applied; returns the
+    new end. Unsigned indices (here and in the reductions): numba then emits no
+    negative-index wraparound, which would keep LLVM from vectorising the loops."""
+    m = np.uint64(m)
+    for j in range(np.uint64(max(lo, 0)), np.uint64(max(hi, 0))):
         buf[0, m] = x[j] + shx
         buf[1, m] = y[j] + shy
         buf[d, m] = hx[j]
@@ -280,91 +260,130 @@ def _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d):
         if d == 3:
             buf[2, m] = z[j] + shz
             buf[5, m] = hz[j]
-        m += 1
-    return m
+        m += _U1
+    return np.int64(m)
 
 
 @numba.njit(cache=True)
-def _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d):
-    """The particles of the 3^d cells around cell ``c`` into ``buf`` (coordinates rows
-    ``0..d-1``, headings rows ``d..2d-1``), shifted to the periodic image nearest ``c``:
-    then one branch-free loop over a contiguous buffer serves every particle of ``c``.
-    Returns how many were copied, or -1 if they do not fit."""
+def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d):
+    """Copy what the cells ``c0..c1-1`` of a line of cells need into ``buf``; returns how
+    many entries it used, or -1 (nothing copied) if the buffer is too small.
+
+    A line is a row of cells along x (in 3D, one per (y, z)). The 3 (3D: 9) lines around
+    it (this one included) each hold the columns ``c0 - 1 .. c1`` as one contiguous range
+    of slots, so each is copied whole (a column past an end of the line is the wrapped
+    one, copied alongside with its shift), coordinates in rows ``0..d-1`` and headings in
+    rows ``d..2d-1``, shifted to the periodic image nearest this line. For line ``r``,
+    ``rows[r]`` = (first cell of that line, where its copy starts, where it ends, what to
+    add to a slot to find its copy). Each copy is followed by three zeroed entries, so a
+    reduction may read whole groups of four past its end (and multiply them by 0).
+    """
     nx, ny = nc[0], nc[1]
-    cap = buf.shape[1]
-    cx = c % nx
-    cy = (c // nx) % ny
-    cz = c // (nx * ny) if d == 3 else 0
+    gy, gz = line % ny, line // ny
+    nr = rows.shape[0]
+    need = 0
+    for r in range(nr):
+        row0 = (((gz + r // 3 - 1) % nc[2] if d == 3 else 0) * ny + (gy + r % 3 - 1) % ny) * nx
+        need += start[row0 + min(c1 + 1, nx)] - start[row0 + max(c0 - 1, 0)] + 3
+        if c0 == 0:
+            need += start[row0 + nx] - start[row0 + nx - 1]
+        if c1 == nx:
+            need += start[row0 + 1] - start[row0]
+    if need > buf.shape[1]:
+        return -1
     m = 0
-    for oz in range(-1 if d == 3 else 0, 2 if d == 3 else 1):
-        gz, shz = _neighbour_row(cz + oz, nc[d - 1], box[d - 1])
-        for oy in range(-1, 2):
-            gy, shy = _neighbour_row(cy + oy, ny, box[1])
-            lo, hi, shx, lo2, hi2, shx2 = _x_ranges((gz * ny + gy) * nx, cx, nx, start, box[0])
-            if m + (hi - lo) + (hi2 - lo2) > cap:
-                return -1
-            m = _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d)
-            m = _copy(x, y, z, hx, hy, hz, lo2, hi2, shx2, shy, shz, buf, m, d)
+    for r in range(nr):
+        shz = 0.0
+        hz_ = 0
+        if d == 3:
+            hz_, shz = _neighbour_row(gz + r // 3 - 1, nc[2], box[2])
+        hy_, shy = _neighbour_row(gy + r % 3 - 1, ny, box[1])
+        row0 = (hz_ * ny + hy_) * nx
+        rows[r, 0] = row0
+        rows[r, 1] = m
+        if c0 == 0:
+            m = _copy(x, y, z, hx, hy, hz, start[row0 + nx - 1], start[row0 + nx], -box[0], shy, shz, buf, m, d)
+        first = start[row0 + max(c0 - 1, 0)]
+        rows[r, 3] = m - first
+        m = _copy(x, y, z, hx, hy, hz, first, start[row0 + min(c1 + 1, nx)], 0.0, shy, shz, buf, m, d)
+        if c1 == nx:
+            m = _copy(x, y, z, hx, hy, hz, start[row0], start[row0 + 1], box[0], shy, shz, buf, m, d)
+        rows[r, 2] = m
+        for a in range(2 * d):
+            buf[a, m], buf[a, m + 1], buf[a, m + 2] = 0.0, 0.0, 0.0
+        m += 3
     return m
 
 
 @numba.njit(cache=True, inline="always")
-def _term_2d(buf, j, xi, yi, r2):
-    """Candidate ``j``'s heading and 1 if it is within ``R`` of ``(xi, yi)``, else zeros."""
+def _ranges(cx, nx, start, rows, ranges):
+    """Where, in the buffer of :func:`_gather_rows`, the candidates of column ``cx`` lie:
+    one range per neighbouring line, into ``ranges``."""
+    for r in range(rows.shape[0]):
+        row0, delta = rows[r, 0], rows[r, 3]
+        ranges[r, 0] = rows[r, 1] if cx == 0 else start[row0 + cx - 1] + delta
+        ranges[r, 1] = rows[r, 2] if cx == nx - 1 else start[row0 + cx + 2] + delta
+
+
+@numba.njit(cache=True, inline="always")
+def _term_2d(buf, j, last, xi, yi, r2):
+    """Candidate ``j``'s heading and 1 if ``j <= last`` and it is within ``R`` of
+    ``(xi, yi)``, else zeros (multiplied by 0 or 1, not branched on: data-dependent
+    branches mispredict and keep the lanes from being vectorised)."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
-    w = 1.0 if dx * dx + dy * dy < r2 else 0.0
+    w = 1.0 if (dx * dx + dy * dy < r2) & (j <= last) else 0.0
     return buf[2, j] * w, buf[3, j] * w, w
 
 
 @numba.njit(cache=True, inline="always")
-def _term_3d(buf, j, xi, yi, zi, r2):
+def _term_3d(buf, j, last, xi, yi, zi, r2):
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi
-    w = 1.0 if dx * dx + dy * dy + dz * dz < r2 else 0.0
+    w = 1.0 if (dx * dx + dy * dy + dz * dz < r2) & (j <= last) else 0.0
     return buf[3, j] * w, buf[4, j] * w, buf[5, j] * w, w
 
 
-# The reductions sum in four interleaved lanes (candidate j goes to lane j % 4), then the
-# lanes in a fixed order: independent chains that LLVM's SLP vectoriser packs into SIMD
-# registers without reordering any addition, so the result is fixed by this source.
-# (Letting the optimiser reassociate, fastmath-style, vectorised too, but code compiled in
-# one process and code loaded from numba's cache then rounded differently: a first run and
-# a second run of the same seed differed in the last bits.)
+# The reductions sum in four interleaved lanes (within a range, candidate lo + 4g + l goes
+# to lane l; a last, partial group of four is masked), range after range, then the lanes
+# in a fixed order: independent chains that LLVM's SLP vectoriser packs into SIMD registers
+# without reordering any addition, so the result is fixed by this source. (Letting the
+# optimiser reassociate, fastmath-style, vectorised too, but code compiled in one process
+# and code loaded from numba's cache then rounded differently: a first run and a second
+# run of the same seed differed in the last bits.)
 
 
 @numba.njit(cache=True)
-def _reduce_2d(buf, m, x, y, i0, i1, r2, out):
-    """For slots ``i0..i1``: sum of headings and count of the buffered candidates within
-    ``R`` (self included) into ``out[:, i - i0]``."""
-    m4 = m - m % 4
+def _reduce_2d(buf, ranges, x, y, i0, i1, r2, out):
+    """For slots ``i0..i1``: sum of headings and count of the candidates in the buffer
+    ``ranges`` within ``R`` (self included) into ``out[:, i - i0]``."""
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
         a0 = a1 = a2 = a3 = 0.0
         b0 = b1 = b2 = b3 = 0.0
         n0 = n1 = n2 = n3 = 0.0
-        for j in range(0, m4, 4):
-            p0, q0, w0 = _term_2d(buf, j, xi, yi, r2)
-            p1, q1, w1 = _term_2d(buf, j + 1, xi, yi, r2)
-            p2, q2, w2 = _term_2d(buf, j + 2, xi, yi, r2)
-            p3, q3, w3 = _term_2d(buf, j + 3, xi, yi, r2)
-            a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
-            b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
-            n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
-        for j in range(m4, m):
-            p0, q0, w0 = _term_2d(buf, j, xi, yi, r2)
-            a0, b0, n0 = a0 + p0, b0 + q0, n0 + w0
+        for r in range(ranges.shape[0]):
+            lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
+            m4 = hi - (hi - lo) % np.uint64(4)
+            for j in range(lo, hi, np.uint64(4)):
+                last = _ALL if j < m4 else hi - _U1
+                p0, q0, w0 = _term_2d(buf, j, last, xi, yi, r2)
+                p1, q1, w1 = _term_2d(buf, j + _U1, last, xi, yi, r2)
+                p2, q2, w2 = _term_2d(buf, j + np.uint64(2), last, xi, yi, r2)
+                p3, q3, w3 = _term_2d(buf, j + np.uint64(3), last, xi, yi, r2)
+                a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+                b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+                n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
         out[0, i - i0] = (a0 + a1) + (a2 + a3)
         out[1, i - i0] = (b0 + b1) + (b2 + b3)
         out[2, i - i0] = (n0 + n1) + (n2 + n3)
 
 
 @numba.njit(cache=True)
-def _reduce_3d(buf, m, x, y, z, i0, i1, r2, out):
+def _reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out):
     """As :func:`_reduce_2d`, in 3D."""
-    m4 = m - m % 4
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
@@ -373,18 +392,19 @@ def _reduce_3d(buf, m, x, y, z, i0, i1, r2, out):
         b0 = b1 = b2 = b3 = 0.0
         c0 = c1 = c2 = c3 = 0.0
         n0 = n1 = n2 = n3 = 0.0
-        for j in range(0, m4, 4):
-            p0, q0, r0, w0 = _term_3d(buf, j, xi, yi, zi, r2)
-            p1, q1, r1, w1 = _term_3d(buf, j + 1, xi, yi, zi, r2)
-            p2, q2, r2_, w2 = _term_3d(buf, j + 2, xi, yi, zi, r2)
-            p3, q3, r3, w3 = _term_3d(buf, j + 3, xi, yi, zi, r2)
-            a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
-            b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
-            c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
-            n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
-        for j in range(m4, m):
-            p0, q0, r0, w0 = _term_3d(buf, j, xi, yi, zi, r2)
-            a0, b0, c0, n0 = a0 + p0, b0 + q0, c0 + r0, n0 + w0
+        for r in range(ranges.shape[0]):
+            lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
+            m4 = hi - (hi - lo) % np.uint64(4)
+            for j in range(lo, hi, np.uint64(4)):
+                last = _ALL if j < m4 else hi - _U1
+                p0, q0, r0, w0 = _term_3d(buf, j, last, xi, yi, zi, r2)
+                p1, q1, r1, w1 = _term_3d(buf, j + _U1, last, xi, yi, zi, r2)
+                p2, q2, r2_, w2 = _term_3d(buf, j + np.uint64(2), last, xi, yi, zi, r2)
+                p3, q3, r3, w3 = _term_3d(buf, j + np.uint64(3), last, xi, yi, zi, r2)
+                a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+                b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+                c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
+                n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
         out[0, i - i0] = (a0 + a1) + (a2 + a3)
         out[1, i - i0] = (b0 + b1) + (b2 + b3)
         out[2, i - i0] = (c0 + c1) + (c2 + c3)
@@ -507,38 +527,151 @@ def _topological(i, c, pos, ids, start, nc, box, half, k, best_d2, best_id, best
 # -- one step -------------------------------------------------------------------------
 
 
+@numba.njit(cache=True, inline="always")
+def _advance_particle(i, sx, sy, sz, total, pos, head, spd, ids, new_pos, new_head, cell, ring, slot,
+                      step, seed, eta, vectorial, epsilon, delay, dt, backward, nc, inv, box):
+    """Slot ``i``'s new heading and position into ``new_*`` and its new cell into ``cell``,
+    from the sum ``S`` of its neighbours' headings and their number ``total``, both with
+    the particle itself. Returns the new heading (``wz`` is 0 in 2D)."""
+    d, n = pos.shape
+    if delay > 0:
+        # ring rows are read by particle id, in no particular order: ask for the row a few
+        # particles ahead so that its cache miss overlaps work
+        _prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
+        # this slot holds the sums of `delay` steps ago: read them, store today's
+        pid = ids[i]
+        osx, osy, osz, ototal = ring[slot, pid, 0], ring[slot, pid, 1], 0.0, ring[slot, pid, d]
+        ring[slot, pid, 0] = sx - head[0, i]
+        ring[slot, pid, 1] = sy - head[1, i]
+        if d == 3:
+            osz = ring[slot, pid, 2]
+            ring[slot, pid, 2] = sz - head[2, i]
+        ring[slot, pid, d] = total
+        sx = head[0, i] + osx
+        sy = head[1, i] + osy
+        if d == 3:
+            sz = head[2, i] + osz
+        total = ototal
+    ds = (spd[i] if spd.shape[0] == n else spd[0]) * dt
+    if d == 2:
+        ux, uy = head[0, i], head[1, i]
+        wx, wy = update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step, ids[i])
+        wz = 0.0
+        new_head[0, i], new_head[1, i] = wx, wy
+        if backward:
+            new_pos[0, i] = wrap(pos[0, i] + ds * wx, box[0])
+            new_pos[1, i] = wrap(pos[1, i] + ds * wy, box[1])
+        else:
+            new_pos[0, i] = wrap(pos[0, i] + ds * ux, box[0])
+            new_pos[1, i] = wrap(pos[1, i] + ds * uy, box[1])
+    else:
+        ux, uy, uz = head[0, i], head[1, i], head[2, i]
+        wx, wy, wz = update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step, ids[i])
+        new_head[0, i], new_head[1, i], new_head[2, i] = wx, wy, wz
+        if backward:
+            ux, uy, uz = wx, wy, wz
+        new_pos[0, i] = wrap(pos[0, i] + ds * ux, box[0])
+        new_pos[1, i] = wrap(pos[1, i] + ds * uy, box[1])
+        new_pos[2, i] = wrap(pos[2, i] + ds * uz, box[2])
+    cell[i] = _cell_of(new_pos, i, nc, inv)
+    return wx, wy, wz
+
+
+@numba.njit(cache=True)
+def work_units(nc, n, mode):
+    """How many units of work a step is split into: segments of lines of cells for the
+    fast metric kernel (mode 0), blocks of slots otherwise. Fixed by the model alone."""
+    if mode == 0:
+        return (np.prod(nc) // nc[0]) * ((nc[0] + _SEGMENT - 1) // _SEGMENT)
+    return (n + _BLOCK - 1) // _BLOCK
+
+
 @numba.njit(cache=True, parallel=True)
-def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, p, partial, threads):
-    """One step from the sorted arrays into ``new_*`` (same slots); ``cell`` gets each new
-    cell and ``partial[b]`` the sum of block ``b``'s new headings. ``threads`` only splits
-    the work.
+def _step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, p, partial,
+                threads):
+    """One step of the metric model on a grid of at least three cells per axis, from the
+    sorted arrays into ``new_*`` (same slots); ``cell`` gets each new cell and
+    ``partial[u]`` the sum of unit ``u``'s new headings. ``threads`` only splits the work.
 
     ``p`` packs the scalar parameters: r2, k (0 for metric), eta, vectorial, epsilon,
-    delay, dt, backward, (unused), mode (0 fast metric, 1 generic metric, 2 topological).
+    delay, dt, backward, (unused), mode (0 here, 1 generic metric, 2 topological).
     """
+    d, n = pos.shape
+    r2, eta, vectorial, epsilon = p[0], p[2], p[3] != 0.0, p[4]
+    delay, dt, backward = int(p[5]), p[6], p[7] != 0.0
+    inv = nc / box
+    nx = nc[0]
+    nseg = (nx + _SEGMENT - 1) // _SEGMENT
+    nunits = work_units(nc, n, 0)
+    nt = max(1, min(threads, nunits))
+    counter = np.zeros(1, dtype=np.int64)
+    for t in numba.prange(nt):
+        # views taken once per thread: a view in the hot loop costs an atomic refcount
+        x, y, z = pos[0], pos[1], pos[d - 1]
+        hx, hy, hz = head[0], head[1], head[d - 1]
+        buf = np.empty((2 * d, 4096))
+        rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
+        ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
+        out = np.empty((d + 1, 16))
+        while True:
+            # units go to whichever thread is free: balanced when particles cluster or
+            # when another program holds a core; a unit's result never depends on who
+            u = _fetch_add(counter)
+            if u >= nunits:
+                break
+            line = u // nseg
+            c0 = (u % nseg) * _SEGMENT
+            c1 = min(nx, c0 + _SEGMENT)
+            while _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d) < 0:
+                buf = np.empty((2 * d, 2 * buf.shape[1]))
+            px = 0.0
+            py = 0.0
+            pz = 0.0
+            for cx in range(c0, c1):
+                c = line * nx + cx
+                i0, i1 = start[c], start[c + 1]
+                if i1 - i0 > out.shape[1]:
+                    out = np.empty((d + 1, 2 * (i1 - i0)))
+                _ranges(cx, nx, start, rows, ranges)
+                if d == 2:
+                    _reduce_2d(buf, ranges, x, y, i0, i1, r2, out)
+                else:
+                    _reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out)
+                # unsigned slots: no negative-index wraparound on every access (see below)
+                for i in range(np.uint64(max(i0, 0)), np.uint64(max(i1, 0))):
+                    q = np.int64(i) - i0
+                    sz = out[2, q] if d == 3 else 0.0
+                    wx, wy, wz = _advance_particle(i, out[0, q], out[1, q], sz, out[d, q],
+                                                   pos, head, spd, ids, new_pos, new_head, cell, ring, slot,
+                                                   step, seed, eta, vectorial, epsilon, delay, dt, backward,
+                                                   nc, inv, box)
+                    px += wx
+                    py += wy
+                    pz += wz
+            partial[u, 0] = px
+            partial[u, 1] = py
+            partial[u, 2] = pz
+
+
+@numba.njit(cache=True, parallel=True)
+def _step_search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, p, partial,
+                 threads):
+    """As :func:`_step_lines`, for topological neighbours (mode 2) and for metric grids
+    with fewer than three cells along some axis (mode 1), over blocks of slots."""
     d, n = pos.shape
     r2, k, eta, vectorial, epsilon = p[0], int(p[1]), p[2], p[3] != 0.0, p[4]
     delay, dt, backward, mode = int(p[5]), p[6], p[7] != 0.0, int(p[9])
     half = box / 2.0
     inv = nc / box
     ncells = start.shape[0] - 1
-    per_particle = spd.shape[0] == n
-    nblocks = (n + _BLOCK - 1) // _BLOCK
+    nblocks = work_units(nc, n, 1)
     nt = max(1, min(threads, nblocks))
     counter = np.zeros(1, dtype=np.int64)
     for t in numba.prange(nt):
         best_d2 = np.empty(max(k, 1))
         best_id = np.empty(max(k, 1), dtype=np.int64)
         best_slot = np.empty(max(k, 1), dtype=np.int64)
-        # views taken once per thread: a view in the hot loop costs an atomic refcount
-        x, y, z = pos[0], pos[1], pos[d - 1]
-        hx, hy, hz = head[0], head[1], head[d - 1]
-        buf = np.empty((2 * d, 64))
-        ocap = 16
-        out = np.empty((d + 1, ocap))
         while True:
-            # blocks go to whichever thread is free: balanced when particles cluster or
-            # when another program holds a core; a block's result never depends on who
             b = _fetch_add(counter)
             if b >= nblocks:
                 break
@@ -549,26 +682,9 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
             py = 0.0
             pz = 0.0
             while c < ncells and start[c] < s1:
-                i0, i1 = max(start[c], s0), min(start[c + 1], s1)
-                if mode == 0 and i0 < i1:
-                    if i1 - i0 > ocap:
-                        ocap = 2 * (i1 - i0)
-                        out = np.empty((d + 1, ocap))
-                    m = _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d)
-                    if m < 0:  # a dense cell: a buffer twice as large as it needs, then again
-                        buf = np.empty((2 * d, 2 * _candidates(c, start, nc, d)))
-                        m = _gather(c, x, y, z, hx, hy, hz, start, nc, box, buf, d)
-                    if d == 2:
-                        _reduce_2d(buf, m, x, y, i0, i1, r2, out)
-                    else:
-                        _reduce_3d(buf, m, x, y, z, i0, i1, r2, out)
-                for i in range(i0, i1):
+                for i in range(max(start[c], s0), min(start[c + 1], s1)):
                     sz = 0.0
-                    if mode == 0:
-                        sx, sy, count = out[0, i - i0], out[1, i - i0], out[d, i - i0]
-                        if d == 3:
-                            sz = out[2, i - i0]
-                    elif mode == 1:
+                    if mode == 1:
                         sx, sy, sz, count = _generic_sums(i, c, pos, head, start, nc, box, half, r2)
                     else:
                         found = _topological(i, c, pos, ids, start, nc, box, half, k, best_d2, best_id, best_slot)
@@ -583,50 +699,12 @@ def _step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
                             if d == 3:
                                 sz += head[2, j]
                         count = found + 1
-                    total = float(count)  # the particle itself included
-                    if delay > 0:
-                        # ring rows are read by particle id, in no particular order: ask for
-                        # the row a few particles ahead so that its cache miss overlaps work
-                        _prefetch(ring, slot, ids[min(i + 4, n - 1)])
-                        # this slot holds the sums of `delay` steps ago: read them, store today's
-                        pid = ids[i]
-                        osx, osy, osz, ototal = ring[slot, pid, 0], ring[slot, pid, 1], 0.0, ring[slot, pid, d]
-                        ring[slot, pid, 0] = sx - head[0, i]
-                        ring[slot, pid, 1] = sy - head[1, i]
-                        if d == 3:
-                            osz = ring[slot, pid, 2]
-                            ring[slot, pid, 2] = sz - head[2, i]
-                        ring[slot, pid, d] = total
-                        sx = head[0, i] + osx
-                        sy = head[1, i] + osy
-                        if d == 3:
-                            sz = head[2, i] + osz
-                        total = ototal
-                    ds = (spd[i] if per_particle else spd[0]) * dt
-                    if d == 2:
-                        ux, uy = head[0, i], head[1, i]
-                        wx, wy = update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step, ids[i])
-                        new_head[0, i], new_head[1, i] = wx, wy
-                        px += wx
-                        py += wy
-                        if not backward:
-                            wx, wy = ux, uy
-                        new_pos[0, i] = wrap(pos[0, i] + ds * wx, box[0])
-                        new_pos[1, i] = wrap(pos[1, i] + ds * wy, box[1])
-                    else:
-                        ux, uy, uz = head[0, i], head[1, i], head[2, i]
-                        wx, wy, wz = update_3d(ux, uy, uz, sx, sy, sz, total,
-                                               epsilon, eta, vectorial, seed, step, ids[i])
-                        new_head[0, i], new_head[1, i], new_head[2, i] = wx, wy, wz
-                        px += wx
-                        py += wy
-                        pz += wz
-                        if not backward:
-                            wx, wy, wz = ux, uy, uz
-                        new_pos[0, i] = wrap(pos[0, i] + ds * wx, box[0])
-                        new_pos[1, i] = wrap(pos[1, i] + ds * wy, box[1])
-                        new_pos[2, i] = wrap(pos[2, i] + ds * wz, box[2])
-                    cell[i] = _cell_of(new_pos, i, nc, inv)
+                    wx, wy, wz = _advance_particle(i, sx, sy, sz, float(count), pos, head, spd, ids, new_pos,
+                                                   new_head, cell, ring, slot, step, seed, eta, vectorial,
+                                                   epsilon, delay, dt, backward, nc, inv, box)
+                    px += wx
+                    py += wy
+                    pz += wz
                 c += 1
             partial[b, 0] = px
             partial[b, 1] = py
@@ -689,12 +767,13 @@ class CPUBackend:
             self._spd, self._tmp_spd = speeds[:1].copy(), speeds[:1].copy()  # one number
         else:
             self._spd, self._tmp_spd = np.empty(n), np.empty(n)
-        self._partial = np.zeros(((n + _BLOCK - 1) // _BLOCK, 3))
         self._step_count = state.step
         if model.neighbours == "topological":
             mode = 2
         else:
             mode = 0 if np.all(self._nc >= 3) else 1
+        self._kernel = _step_lines if mode == 0 else _step_search
+        self._partial = np.zeros((work_units(self._nc, n, mode), 3))
         self._params = np.array([
             model.radius**2, model.k if model.neighbours == "topological" else 0, model.noise,
             model.noise_type == "vectorial", model.alignment, model.delay, model.dt,
@@ -745,9 +824,9 @@ class CPUBackend:
         ring = np.zeros((1, n, d + 1))
         params = self._params.copy()
         params[5] = 1.0  # record the sums in a one-slot ring; the step itself is thrown away
-        _step(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
-              *self._scratch(), self._cell.copy(), ring, 0,
-              self._step_count, self._seed, params, self._partial.copy(), numba.get_num_threads())
+        self._kernel(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
+                     *self._scratch(), self._cell.copy(), ring, 0,
+                     self._step_count, self._seed, params, self._partial.copy(), numba.get_num_threads())
         return ring[0]
 
     @property
@@ -788,9 +867,9 @@ class CPUBackend:
         new_pos, new_head = self._scratch()
         for t in range(steps):
             slot = self._step_count % delay if delay else 0
-            _step(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
-                  new_pos, new_head, self._cell, self._ring, slot, self._step_count,
-                  self._seed, self._params, self._partial, numba.get_num_threads())
+            self._kernel(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
+                         new_pos, new_head, self._cell, self._ring, slot, self._step_count,
+                         self._seed, self._params, self._partial, numba.get_num_threads())
             self._sort_into(new_pos, new_head, self._spd, self._ids, self._tmp_spd, self._tmp_ids)
             self._spd, self._tmp_spd = self._tmp_spd, self._spd
             self._ids, self._tmp_ids = self._tmp_ids, self._ids
