@@ -147,3 +147,19 @@ def test_bitwise_identical_for_one_and_two_threads(tmp_path):
         subprocess.run([sys.executable, "-c", _RUN, str(path)], check=True, env=env)
         results.append(np.load(path))
     assert results[0].tobytes() == results[1].tobytes()
+
+
+def test_saved_order_is_restored_and_checked():
+    """The order a checkpoint saves comes back slot for slot; a corrupt one is refused."""
+    from flocking.model import ParameterError
+
+    model = Model(n=500, box=15.0, noise=0.5, seed=2)
+    cpu = CPUBackend(model, State.random(model))
+    cpu.advance(7)  # particles have changed cells: the order is no longer by id within them
+    memory = cpu.memory()
+    again = CPUBackend(model, cpu.state, memory=memory)
+    np.testing.assert_array_equal(again._ids, cpu._ids)
+    np.testing.assert_array_equal(again.advance(3), cpu.advance(3))
+    for bad in (memory["order"][:-1], np.zeros(500, dtype=np.int32), memory["order"] * 1.0):
+        with pytest.raises(ParameterError, match="particle order"):
+            CPUBackend(model, again.state, memory={"order": bad})

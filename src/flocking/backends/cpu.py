@@ -16,13 +16,15 @@ smaller than ``3R``) goes through a generic kernel that takes the minimum image 
 so no particle is counted twice. Topological neighbours search rings of cells outward
 until the k-th distance is inside the searched region.
 
-Determinism. Work is split into fixed blocks of slots that threads take from an atomic
-counter as they become free (which balances clustered states and busy machines). A
-particle's new heading depends only on the sorted arrays and on counter-based random
-numbers, and the sorted order is by cell, then by particle id within a cell: a pure
-function of the state, so neither the thread count nor a restart from a checkpoint changes
-the order in which neighbours are added. The polar order is summed per block, then over
-blocks in order. No result depends on the number of threads.
+Determinism. Work is split into fixed units (segments of lines of cells; blocks of slots
+for the search kernel) that threads take from an atomic counter as they become free (which
+balances clustered states and busy machines). A particle's new heading depends only on the
+sorted arrays and on counter-based random numbers, and the sort is stable: within a cell,
+particles keep the order they had the step before (id order when a run starts), whatever
+the number of threads. A checkpoint saves that order (:meth:`CPUBackend.memory`), so a run
+continued from it adds neighbours in the same order as one that never stopped. The polar
+order is summed per unit, then over units in order. No result depends on the number of
+threads.
 
 Delay. The sum of the neighbours' headings (without the particle itself) and ``1 +`` their
 count at step ``t`` is exactly what step ``t + tau`` needs: ``_ring[t % tau, id]`` holds
@@ -52,7 +54,7 @@ import numpy as np  # noqa: E402
 from numba.core import cgutils, types  # noqa: E402
 from numba.extending import intrinsic  # noqa: E402
 
-from ..model import Model
+from ..model import Model, ParameterError
 from ..state import State  # noqa: E402
 from .kernels import minimum_image, update_2d, update_3d, wrap  # noqa: E402
 
@@ -194,39 +196,6 @@ def _scatter(cell, hist, pos, head, spd, ids, pos2, head2, spd2, ids2):
             if per_particle:
                 spd2[s] = spd[i]
             ids2[s] = ids[i]
-
-
-@numba.njit(cache=True, parallel=True)
-def _by_id_within_cells(start, pos, head, spd, ids):
-    """Sort each cell's slots by particle id (insertion sort: cells hold a few particles and
-    are mostly in order already). The order, cell then id, is then a pure function of the
-    state, so a run continued from a checkpoint adds neighbours in the same order as one
-    that never stopped."""
-    d = pos.shape[0]
-    per_particle = spd.shape[0] == ids.shape[0] and ids.shape[0] > 1
-    for c in numba.prange(start.shape[0] - 1):
-        lo, hi = start[c], start[c + 1]
-        for s in range(lo + 1, hi):
-            key = ids[s]
-            if ids[s - 1] <= key:
-                continue
-            p0, p1, p2 = pos[0, s], pos[1, s], pos[d - 1, s]
-            h0, h1, h2 = head[0, s], head[1, s], head[d - 1, s]
-            sp = spd[s] if per_particle else 0.0
-            t = s
-            while t > lo and ids[t - 1] > key:
-                for a in range(d):
-                    pos[a, t] = pos[a, t - 1]
-                    head[a, t] = head[a, t - 1]
-                if per_particle:
-                    spd[t] = spd[t - 1]
-                ids[t] = ids[t - 1]
-                t -= 1
-            pos[0, t], pos[1, t], pos[d - 1, t] = p0, p1, p2
-            head[0, t], head[1, t], head[d - 1, t] = h0, h1, h2
-            if per_particle:
-                spd[t] = sp
-            ids[t] = key
 
 
 # -- neighbour sums -------------------------------------------------------------------
@@ -785,16 +754,34 @@ class CPUBackend:
         self._load(state, memory)
 
     def memory(self) -> dict[str, np.ndarray]:
-        """What the backend remembers beyond the state: the delay ring, indexed by id."""
-        return {"ring": self._ring.copy()} if self.model.delay else {}
+        """What the backend remembers beyond the state: the order of the particles (ids
+        slot by slot: within a cell it is the order of earlier steps, which the sums
+        follow) and the delay ring, indexed by id."""
+        memory = {"order": self._ids.copy()}
+        if self.model.delay:
+            memory["ring"] = self._ring.copy()
+        return memory
 
     def _load(self, state: State, memory: dict | None) -> None:
-        # the kernels read the (N, d) arrays through transposed views: no copies
-        pos = state.positions.T
+        memory = memory or {}
+        n = state.n
+        order = memory.get("order")
+        if order is not None:
+            order = np.asarray(order)
+            if order.shape != (n,) or order.dtype.kind not in "iu" or not np.array_equal(np.sort(order), np.arange(n)):
+                raise ParameterError("resume: the checkpoint's particle order is not a permutation of the particles")
+            order = order.astype(self._ids.dtype)
+            # in the saved order; the stable sort below then keeps it exactly
+            pos, head = state.positions[order].T, state.headings[order].T
+            spd = state.speeds[order] if self._spd.shape[0] > 1 else self._tmp_spd
+        else:
+            order = np.arange(n, dtype=self._ids.dtype)
+            # the kernels read the (N, d) arrays through transposed views: no copies
+            pos, head = state.positions.T, state.headings.T
+            spd = np.ascontiguousarray(state.speeds) if self._spd.shape[0] > 1 else self._tmp_spd
         _cells(pos, self._nc, self._nc / self._box, self._cell)
-        spd = np.ascontiguousarray(state.speeds) if self._spd.shape[0] > 1 else self._tmp_spd
-        self._sort_into(pos, state.headings.T, spd, np.arange(state.n, dtype=self._ids.dtype), self._spd, self._ids)
-        if memory:
+        self._sort_into(pos, head, spd, order, self._spd, self._ids)
+        if "ring" in memory:
             self._ring[:] = memory["ring"]
         elif self.model.delay:
             self._prime_delay()
@@ -804,7 +791,6 @@ class CPUBackend:
         hist = self._hist[: max(1, min(numba.get_num_threads(), self._hist.shape[0]))]
         _sort(self._cell, hist, self._start)
         _scatter(self._cell, hist, pos, head, spd, ids, self._pos, self._head, spd2, ids2)
-        _by_id_within_cells(self._start, self._pos, self._head, spd2, ids2)
 
     def _scratch(self) -> tuple[np.ndarray, np.ndarray]:
         """The spare half of the double buffer ``(new_pos, new_head)``: written by a step,

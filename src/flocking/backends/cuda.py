@@ -159,7 +159,7 @@ class CUDABackend:
         k.cells[self._grid, self._block](self._new_pos, *self._geometry[:6], self._cell, self._counts)
         phi = cuda.device_array((1, state.dim), np.float64)
         self._sort(self._spd2, self._ids2, phi, 0)
-        if memory:
+        if memory and "ring" in memory:
             ring = np.ascontiguousarray(np.asarray(memory["ring"]).transpose(0, 2, 1), dtype=self._real)
             self._ring.copy_to_device(ring)
         elif self.model.delay:

@@ -133,7 +133,7 @@ class ReferenceBackend:
         self._state = state.copy()
         # the last `delay` states, oldest first; the initial state stands in for the past
         past = [self._state.copy()] * model.delay
-        if memory:
+        if memory and "positions" in memory:
             past = [State(p, h, state.speeds) for p, h in zip(memory["positions"], memory["headings"])]
         self._history = collections.deque(past, maxlen=max(model.delay, 1))
 
