@@ -44,10 +44,13 @@ from __future__ import annotations
 import math
 import os
 
-# Idle OpenMP threads sleep instead of spinning between the several parallel loops of a
-# step: on a machine shared with other work, spinning costs the scheduler's fair share and
-# halved throughput in our measurements (docs/performance.md). Set it to override.
+# Idle OpenMP threads spin only briefly (about a microsecond), then sleep: long enough to
+# bridge the back-to-back parallel loops of a step (waking a sleeping thread costs tens of
+# microseconds, which halved throughput at N = 1e4), short enough not to take a busy
+# machine's cores from other work (long spins halved throughput there; see
+# docs/performance.md). Set either variable to override.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+os.environ.setdefault("GOMP_SPINCOUNT", "1000")
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
