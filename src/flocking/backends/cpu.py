@@ -327,9 +327,9 @@ def _term_3d(buf, j, last, xi, yi, zi, r2):
 
 
 @numba.njit(cache=True)
-def _reduce_2d(buf, ranges, x, y, i0, i1, r2, out):
+def _reduce_2d(buf, ranges, x, y, i0, i1, r2, out, o):
     """For slots ``i0..i1``: sum of headings and count of the candidates in the buffer
-    ``ranges`` within ``R`` (self included) into ``out[:, i - i0]``."""
+    ``ranges`` within ``R`` (self included) into ``out[:, o + i - i0]``."""
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
@@ -348,13 +348,13 @@ def _reduce_2d(buf, ranges, x, y, i0, i1, r2, out):
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
-        out[0, i - i0] = (a0 + a1) + (a2 + a3)
-        out[1, i - i0] = (b0 + b1) + (b2 + b3)
-        out[2, i - i0] = (n0 + n1) + (n2 + n3)
+        out[0, o + i - i0] = (a0 + a1) + (a2 + a3)
+        out[1, o + i - i0] = (b0 + b1) + (b2 + b3)
+        out[2, o + i - i0] = (n0 + n1) + (n2 + n3)
 
 
 @numba.njit(cache=True)
-def _reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out):
+def _reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
     """As :func:`_reduce_2d`, in 3D."""
     for i in range(i0, i1):
         xi = x[i]
@@ -377,10 +377,10 @@ def _reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out):
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
-        out[0, i - i0] = (a0 + a1) + (a2 + a3)
-        out[1, i - i0] = (b0 + b1) + (b2 + b3)
-        out[2, i - i0] = (c0 + c1) + (c2 + c3)
-        out[3, i - i0] = (n0 + n1) + (n2 + n3)
+        out[0, o + i - i0] = (a0 + a1) + (a2 + a3)
+        out[1, o + i - i0] = (b0 + b1) + (b2 + b3)
+        out[2, o + i - i0] = (c0 + c1) + (c2 + c3)
+        out[3, o + i - i0] = (n0 + n1) + (n2 + n3)
 
 
 @numba.njit(cache=True, inline="always")
@@ -596,30 +596,33 @@ def _step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ri
             c1 = min(nx, c0 + _SEGMENT)
             while _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d) < 0:
                 buf = np.empty((2 * d, 2 * buf.shape[1]))
+            # first the sums of every particle of the segment, then the updates in one
+            # loop: its iterations are independent, so the processor overlaps their long
+            # chains of dependent operations (it cannot across the reductions)
+            s0, s1 = start[line * nx + c0], start[line * nx + c1]
+            if s1 - s0 > out.shape[1]:
+                out = np.empty((d + 1, 2 * (s1 - s0)))
+            for cx in range(c0, c1):
+                c = line * nx + cx
+                _ranges(cx, nx, start, rows, ranges)
+                if d == 2:
+                    _reduce_2d(buf, ranges, x, y, start[c], start[c + 1], r2, out, start[c] - s0)
+                else:
+                    _reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
             px = 0.0
             py = 0.0
             pz = 0.0
-            for cx in range(c0, c1):
-                c = line * nx + cx
-                i0, i1 = start[c], start[c + 1]
-                if i1 - i0 > out.shape[1]:
-                    out = np.empty((d + 1, 2 * (i1 - i0)))
-                _ranges(cx, nx, start, rows, ranges)
-                if d == 2:
-                    _reduce_2d(buf, ranges, x, y, i0, i1, r2, out)
-                else:
-                    _reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out)
-                # unsigned slots: no negative-index wraparound on every access (see below)
-                for i in range(np.uint64(max(i0, 0)), np.uint64(max(i1, 0))):
-                    q = np.int64(i) - i0
-                    sz = out[2, q] if d == 3 else 0.0
-                    wx, wy, wz = _advance_particle(i, out[0, q], out[1, q], sz, out[d, q],
-                                                   pos, head, spd, ids, new_pos, new_head, cell, ring, slot,
-                                                   step, seed, eta, vectorial, epsilon, delay, dt, backward,
-                                                   nc, inv, box)
-                    px += wx
-                    py += wy
-                    pz += wz
+            # unsigned slots: no negative-index wraparound on every access
+            for i in range(np.uint64(max(s0, 0)), np.uint64(max(s1, 0))):
+                q = np.int64(i) - s0
+                sz = out[2, q] if d == 3 else 0.0
+                wx, wy, wz = _advance_particle(i, out[0, q], out[1, q], sz, out[d, q],
+                                               pos, head, spd, ids, new_pos, new_head, cell, ring, slot,
+                                               step, seed, eta, vectorial, epsilon, delay, dt, backward,
+                                               nc, inv, box)
+                px += wx
+                py += wy
+                pz += wz
             partial[u, 0] = px
             partial[u, 1] = py
             partial[u, 2] = pz
