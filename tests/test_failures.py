@@ -42,10 +42,12 @@ def mount(tmp_path):
         subprocess.run(["umount", "-l", str(target)], capture_output=True)
 
 
-def test_full_disk_is_one_line_and_keeps_what_was_written(mount):
-    disk = mount("300k")
+@pytest.mark.parametrize("n, size", [(2000, "300k"), (70_000, "6m")], ids=["in-line", "threaded-frames"])
+def test_full_disk_is_one_line_and_keeps_what_was_written(mount, n, size):
+    """Small frames are written in line, large ones by a thread: either way the error."""
+    disk = mount(size)
     out = disk / "run"
-    r = flocking_cli("run", "--n", 2000, "--steps", 300, "--every", 1, "--checkpoint-every", 0, "--no-plots",
+    r = flocking_cli("run", "--n", n, "--steps", 300, "--every", 1, "--checkpoint-every", 0, "--no-plots",
                      "--out", out, "-q")
     assert r.returncode == 1
     errors = [line for line in r.stderr.splitlines() if line.startswith("Error:")]
@@ -53,7 +55,7 @@ def test_full_disk_is_one_line_and_keeps_what_was_written(mount):
     assert "Traceback" not in r.stderr
     # every frame flushed before the disk filled is still readable
     with flocking.open(out / "trajectory.gsd") as t:
-        assert len(t) >= 1 and all(f.n == 2000 for f in t)
+        assert len(t) >= 1 and all(f.n == n for f in t)
     assert not any(name.endswith(".tmp") for name in os.listdir(out))
 
 

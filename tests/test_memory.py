@@ -68,8 +68,11 @@ CASES = {
 }
 
 
+@pytest.mark.parametrize("threaded", [False, True], ids=["in-line", "threaded"])
 @pytest.mark.parametrize("case", CASES)
-def test_gsd_frames_are_those_gsd_hoomd_writes_fresh_and_appended(tmp_path, case):
+def test_gsd_frames_are_those_gsd_hoomd_writes_fresh_and_appended(tmp_path, case, threaded, monkeypatch):
+    if threaded:  # every frame written by the writer's thread, as large ones are
+        monkeypatch.setattr(GSDWriter, "threaded_from", 0)
     model, init, backend = CASES[case]
     state = getattr(State, init)(model)
     sim, ours, oracle = _run_both(tmp_path, model, state, backend, "w")
@@ -124,8 +127,59 @@ def test_a_run_with_a_trajectory_stays_under_120_bytes_a_particle(tmp_path):
     finally:
         tracemalloc.stop()
     # the backend holds 82: positions and headings double-buffered (64), ids (8), cells (4),
-    # cell starts and histograms (~6); a frame and the initial state fit in what is left
+    # cell starts and histograms (~6); the writer's copy of a frame in flight 24 (N is
+    # large enough for frames to be written by a thread)
     assert 64 < peak < 120
     with gsd.hoomd.open(tmp_path / "t.gsd") as f:
         assert [fr.configuration.step for fr in f] == [0, 100, 101]
     assert os.path.getsize(tmp_path / "t.gsd") > 3 * 24 * n
+
+
+def test_a_failed_threaded_frame_is_raised_and_every_file_closed(tmp_path, monkeypatch):
+    """An error in the writer's thread reaches the caller at the next write, and the run
+    still closes every writer."""
+    monkeypatch.setattr(GSDWriter, "threaded_from", 0)
+    sim = Simulation(Model(n=300, density=1.0, seed=2))
+    gsd_writer = GSDWriter(tmp_path / "t.gsd", 2)
+    observables = flocking.ObservablesWriter(tmp_path / "obs.csv")
+    sim.writers += [gsd_writer, observables]
+    calls = []
+
+    def fail_second(chunks):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        GSDWriter._append(gsd_writer, chunks)
+
+    monkeypatch.setattr(gsd_writer, "_append", fail_second)
+    with pytest.raises(OSError, match="No space left"):
+        sim.run(10)
+    assert sim.step <= 4  # raised by the write after the failed one, not at the end
+    assert gsd_writer._file is None and observables._file is None
+    with gsd.hoomd.open(tmp_path / "t.gsd") as f:
+        assert [fr.configuration.step for fr in f] == [0]
+
+
+def test_a_checkpoint_waits_for_the_frame_in_flight(tmp_path, monkeypatch):
+    """A checkpoint never gets ahead of the trajectory: it finishes the frame in flight."""
+    import time
+
+    monkeypatch.setattr(GSDWriter, "threaded_from", 0)
+    sim = Simulation(Model(n=300, density=1.0, seed=2))
+    writer = GSDWriter(tmp_path / "t.gsd", 0)
+    sim.writers.append(writer)
+    writer.begin(sim)
+    slow = GSDWriter._append
+
+    def append_slowly(self, chunks):
+        time.sleep(0.3)
+        slow(self, chunks)
+
+    monkeypatch.setattr(GSDWriter, "_append", append_slowly)
+    writer.write(sim)
+    assert writer._thread is not None and writer._thread.is_alive()
+    sim.save_checkpoint(tmp_path / "c.npz")
+    assert writer._thread is None
+    with gsd.hoomd.open(tmp_path / "t.gsd") as f:
+        assert [fr.configuration.step for fr in f] == [0]
+    writer.close()

@@ -104,8 +104,9 @@ class RunConfig:
             self.to_dict())
 
     def check_memory(self, available: int | None = None) -> None:
-        """Refuse, with an estimate, a run that would not fit in the available memory."""
-        need = backends.get(self.backend).bytes_needed(self.model)
+        """Refuse, with an estimate, a run that would not fit in the available memory: the
+        backend's, plus the trajectory writer's copy of a frame (24 bytes a particle)."""
+        need = backends.get(self.backend).bytes_needed(self.model) + 24 * self.model.n
         available = available_memory() if available is None else available
         if available and need > 0.9 * available:
             raise ParameterError(

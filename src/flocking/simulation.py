@@ -12,6 +12,7 @@ from __future__ import annotations
 import array
 import json
 import os
+import sys
 from typing import Any
 
 import numpy as np
@@ -121,13 +122,25 @@ class Simulation:
         finally:
             if bar is not None:
                 bar.close()
-            for w in self.writers:
-                w.close()
+            errors = []
+            for w in self.writers:  # every file closed, even if one fails
+                try:
+                    w.close()
+                except Exception as err:  # noqa: PERF203
+                    errors.append(err)
+            if errors and sys.exc_info()[0] is None:
+                raise errors[0]
 
     # -- checkpoints ---------------------------------------------------------------------
 
     def save_checkpoint(self, path: str | os.PathLike) -> None:
-        """Everything needed to continue bit for bit, written atomically (temp file, fsync, rename)."""
+        """Everything needed to continue bit for bit, written atomically (temp file, fsync, rename).
+
+        Frames still being written are finished first: a checkpoint never gets ahead of
+        the trajectory."""
+        for w in self.writers:
+            if hasattr(w, "sync"):
+                w.sync()
         state = self.state
         meta = {"parameters": self.parameters(), "origin": self.origin, "step": state.step}
         arrays = {"positions": state.positions, "headings": state.headings, "speeds": state.speeds,

@@ -3,7 +3,8 @@
 A writer has ``every`` (a period in steps, counted from the run's origin; ``0`` means only
 the first and the last step of a run), ``begin(sim)`` (called once when a run starts),
 ``write(sim)`` (at each triggered step), ``observe(steps, phi)`` (the polar order of every
-step, in blocks) and ``close()``. Files are flushed as they go, so an interrupted run leaves valid files that
+step, in blocks), ``sync()`` (finish what is in flight; a checkpoint calls it first) and
+``close()``. Files are flushed as they go, so an interrupted run leaves valid files that
 hold everything written so far.
 
 >>> import flocking, tempfile, os
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 
 import numpy as np
 
@@ -44,6 +46,9 @@ class Writer:
 
     def observe(self, steps: np.ndarray, phi: np.ndarray) -> None:
         """Called with the polar order after each step, in blocks."""
+
+    def sync(self) -> None:
+        """Finish any write still in progress (and raise its error, if it failed)."""
 
     def close(self) -> None:
         """Flush and release files."""
@@ -72,8 +77,15 @@ class GSDWriter(Writer):
     Frames go through the file layer (``gsd.fl``) with exactly the chunks that
     ``gsd.hoomd`` would write: a chunk is left out when it equals frame 0's (or, absent
     from frame 0, its default). The arrays come from the backend's ``frame_arrays()``
-    (the CPU backend's spare buffers), so writing a frame allocates nothing per particle.
+    (the CPU backend's spare buffers). A large frame (``threaded_from`` particles and up)
+    is copied into buffers of the writer (24 bytes a particle) and written by a thread
+    while the simulation goes on: disks that take longer to store a frame than the
+    simulation takes to compute the next ones no longer set the pace. One frame is in
+    flight at most; :meth:`sync` waits for it, and an error in writing it is raised there,
+    by the next :meth:`write` or by :meth:`close`.
     """
+
+    threaded_from = 1 << 16
 
     def __init__(self, path: str | os.PathLike, every: int = 100, mode: str = "w"):
         self.path = os.fspath(path)
@@ -83,6 +95,9 @@ class GSDWriter(Writer):
         self._last = None
         self._first: dict[str, np.ndarray] = {}  # frame 0's chunks (the head of large ones)
         self._shapes: dict[str, tuple] = {}
+        self._buffers: tuple[np.ndarray, np.ndarray] | None = None  # a frame in flight
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
 
     def begin(self, sim) -> None:
         if self._file is None:
@@ -130,12 +145,20 @@ class GSDWriter(Writer):
     def write(self, sim) -> None:
         if self._last is not None and sim.step <= self._last:
             return  # appending to a file that already holds this step
+        self.sync()  # the buffers are free again, and an earlier failure surfaces here
         model = sim.model
         # in double precision, as gsd.hoomd compares it (a box that float32 cannot hold
         # exactly differs from frame 0's and is written in every frame); stored in single
         box = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
         box[: model.dim] = model.box
         points, velocities = sim.backend.frame_arrays()
+        threaded = model.n >= self.threaded_from
+        if threaded:  # frame_arrays() are only valid until the next step
+            if self._buffers is None or self._buffers[0].shape != points.shape:
+                self._buffers = np.empty_like(points), np.empty_like(velocities)
+            np.copyto(self._buffers[0], points)
+            np.copyto(self._buffers[1], velocities)
+            points, velocities = self._buffers
         chunks = {
             "configuration/step": np.array([sim.step], dtype=np.uint64),
             "configuration/dimensions": np.array([model.dim], dtype=np.uint8),
@@ -144,6 +167,21 @@ class GSDWriter(Writer):
             "particles/position": points,
             "particles/velocity": velocities,
         }
+        self._last = sim.step
+        if threaded:
+            self._thread = threading.Thread(target=self._write_frame, args=(chunks,), name="gsd-writer", daemon=True)
+            self._thread.start()
+        else:
+            self._write_frame(chunks)
+            self.sync()
+
+    def _write_frame(self, chunks: dict[str, np.ndarray]) -> None:
+        try:
+            self._append(chunks)
+        except BaseException as err:  # raised in the caller's thread by sync()
+            self._error = err
+
+    def _append(self, chunks: dict[str, np.ndarray]) -> None:
         fresh = self._file.nframes == 0
         for name, data in chunks.items():
             if self._differs(name, data):
@@ -156,12 +194,23 @@ class GSDWriter(Writer):
             for name, data in chunks.items():
                 if self._file.chunk_exists(frame=0, name=name):
                     self._remember(name, self._file.read_chunk(frame=0, name=name) if data.size < _HEAD else data)
-        self._last = sim.step
+
+    def sync(self) -> None:
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._error is not None:
+            err, self._error = self._error, None
+            raise err
 
     def close(self) -> None:
-        if self._file is not None:
-            self._file.close()
-            self._file = None
+        try:
+            self.sync()
+        finally:
+            if self._file is not None:
+                self._file.close()
+                self._file = None
+            self._buffers = None
 
 
 class ObservablesWriter(Writer):

@@ -714,7 +714,8 @@ class CPUBackend:
         """Peak memory of a run: the sorted arrays (double-buffered; a written frame lives
         in the spare half), ids, cells, speeds, the delay ring and the sums that prime it,
         the histograms, and the id-ordered ``state`` copy a checkpoint takes (measured:
-        86 bytes a particle in 2D with a trajectory being written, no checkpoint)."""
+        82 bytes a particle in 2D; a run writing a trajectory adds the writer's copy of a
+        frame, 24, for 107 in all)."""
         d = model.dim
         delay = 8 * (model.delay + 1) * (d + 1) + 4 if model.delay else 0
         speeds = 24 if model.speeds == "uniform" else 0
