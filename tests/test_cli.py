@@ -111,7 +111,7 @@ def test_run_3d_topological(tmp_path):
     (["--dim", "4"], "--dim: must be one of 2, 3"),
     (["--box", "4,5,6"], "--box: must be one number or 2 numbers for dim=2"),
     (["--box", "-2"], "--box: must be a finite number > 0"),
-    (["--radius", "0"], "--radius: must be a finite number > 0"),
+    (["--radius", "0"], "--radius: must be in (0, 1e+150]"),
     (["--k", "0"], "--k: must be a whole number >= 1"),
     (["--speed", "0"], "--speed: must be a finite number > 0"),
     (["--dt", "-1"], "--dt: must be a finite number > 0"),

@@ -145,7 +145,7 @@ class Model:
             _choice(name, getattr(self, name))
         _choice("noise_scale", noise_scale)
         put("speed", _real("speed", self.speed, low=0.0, low_open=True))
-        put("radius", _real("radius", self.radius, low=0.0, low_open=True))
+        put("radius", _real("radius", self.radius, low=0.0, low_open=True, high=1e150))  # R^2 must be finite
         put("k", _integer("k", self.k, 1))
         put("alignment", _real("alignment", self.alignment, low=0.0, high=1.0))
         put("delay", _integer("delay", self.delay, 0))
@@ -184,7 +184,14 @@ class Model:
             else:
                 box = ((n / density) ** (1.0 / self.dim),) * self.dim
         volume = math.prod(box)
+        if not math.isfinite(volume):
+            _fail("box", "sides whose product (the volume) is a finite number", box)
         if n is None:
+            if not density * volume <= MAX_PARTICLES:  # n = density * volume, within bounds
+                if self.density is None:
+                    _fail("box", f"small enough for at most {MAX_PARTICLES:.0e} particles at density {density:g}",
+                          box)
+                _fail("density", f"at most {MAX_PARTICLES:.0e} particles in a box of volume {volume:g}", density)
             n = round(density * volume)
             if n < 1:
                 _fail("density", f"large enough for at least one particle in a box of volume {volume:g}",
