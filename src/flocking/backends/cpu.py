@@ -8,13 +8,16 @@ behind a slot; it keys the random numbers and the delay ring and gives the user 
 order back. Constant speeds are stored as one number, not an array.
 
 Cells. Metric neighbours use cells at least ``R`` wide (at most about one per particle)
-numbered row by row with x fastest, so the three cells of a row around a cell are one
-contiguous range of slots: 3 ranges per cell in 2D, 9 in 3D, each with one periodic shift
-decided once per cell (a range that wraps around x is split in two). The inner loop has no
-branch but the distance test and vectorises. An axis with fewer than three cells (a box
-smaller than ``3R``) goes through a generic kernel that takes the minimum image per pair,
-so no particle is counted twice. Topological neighbours search rings of cells outward
-until the k-th distance is inside the searched region.
+numbered row by row with x fastest, so a *line* of cells (a row; in 3D one per (y, z)) is
+one contiguous range of slots. Work comes in units of ``_SEGMENT`` columns of a line: a
+unit copies the slots its cells need from the 3 (3D: 9) lines around it, one contiguous
+block per line shifted to the nearest periodic image (:func:`_gather_rows`), so the
+candidates of a cell are one range per neighbouring line and the pair loop has no branch
+and vectorises. It sums every cell of the unit, then updates every particle of it in one
+loop. An axis with fewer than three cells (a box smaller than ``3R``) goes through a
+generic kernel that takes the minimum image per pair, so no particle is counted twice.
+Topological neighbours search rings of cells outward until the k-th distance is inside the
+searched region.
 
 Determinism. Work is split into fixed units (segments of lines of cells; blocks of slots
 for the search kernel) that threads take from an atomic counter as they become free (which
