@@ -183,3 +183,15 @@ def test_a_checkpoint_waits_for_the_frame_in_flight(tmp_path, monkeypatch):
     with gsd.hoomd.open(tmp_path / "t.gsd") as f:
         assert [fr.configuration.step for fr in f] == [0]
     writer.close()
+
+
+def test_writers_carry_on_over_several_runs_of_a_simulation(tmp_path):
+    """``run`` closes its writers; running again appends instead of starting the files over."""
+    sim = Simulation(Model(n=50, box=5.0, seed=1))
+    sim.writers += [GSDWriter(tmp_path / "t.gsd", every=2), flocking.ObservablesWriter(tmp_path / "o.csv")]
+    sim.run(4)
+    sim.run(4)
+    with gsd.hoomd.open(tmp_path / "t.gsd") as f:
+        assert [int(fr.configuration.step) for fr in f] == [0, 2, 4, 6, 8]
+    rows = (tmp_path / "o.csv").read_text().splitlines()
+    assert rows[0] == "step,polar_order" and [int(r.split(",")[0]) for r in rows[1:]] == list(range(9))

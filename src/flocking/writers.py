@@ -110,6 +110,7 @@ class GSDWriter(Writer):
                 self._file.close()
                 self._file = None
                 raise RuntimeError(f"GSD file is not a hoomd schema file: {self.path}")
+            self.mode = "a"  # a later run of the same simulation appends to what this one wrote
             self._parameters = np.frombuffer(json.dumps(sim.parameters()).encode(), dtype=np.uint8)
             if self._file.nframes:
                 for name in _DEFAULTS:
@@ -227,6 +228,7 @@ class ObservablesWriter(Writer):
         if self._file is None:
             fresh = self.mode == "w" or not os.path.exists(self.path) or os.path.getsize(self.path) == 0
             self._file = open(self.path, self.mode, encoding="utf-8")
+            self.mode = "a"  # a later run of the same simulation appends
             if fresh:
                 self._file.write(",".join(self.columns) + "\n")
                 self._file.write(f"{sim.step},{sim.polar_order[-1]!r}\n")
