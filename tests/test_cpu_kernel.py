@@ -31,6 +31,9 @@ CASES = {
     "uniform-speeds": dict(n=300, box=12.0, speeds="uniform", speed=1.3),
     "rectangle": dict(n=300, box=(20.0, 7.5)),
     "box-3d": dict(dim=3, n=300, box=(8.0, 5.0, 4.0)),
+    # three cells a side, the fewest of the fast path: every line wraps at both ends
+    "three-cells": dict(n=60, box=3.2),
+    "three-cells-3d": dict(dim=3, n=80, box=(3.3, 3.1, 4.5)),
     # lines of more than one work segment (64 columns of cells)
     "long-2d": dict(n=3000, box=(150.0, 10.0)),
     "long-3d": dict(dim=3, n=2000, box=(140.0, 4.0, 3.5)),
