@@ -553,7 +553,7 @@ def _advance_particle(i, sx, sy, sz, total, pos, head, spd, ids, new_pos, new_he
 
 
 @numba.njit(cache=True)
-def work_units(nc, n, mode):
+def _work_units(nc, n, mode):
     """How many units of work a step is split into: segments of lines of cells for the
     fast metric kernel (mode 0), blocks of slots otherwise. Fixed by the model alone."""
     if mode == 0:
@@ -577,7 +577,7 @@ def _step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ri
     inv = nc / box
     nx = nc[0]
     nseg = (nx + _SEGMENT - 1) // _SEGMENT
-    nunits = work_units(nc, n, 0)
+    nunits = _work_units(nc, n, 0)
     nt = max(1, min(threads, nunits))
     counter = np.zeros(1, dtype=np.int64)
     for t in numba.prange(nt):
@@ -642,7 +642,7 @@ def _step_search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, r
     half = box / 2.0
     inv = nc / box
     ncells = start.shape[0] - 1
-    nblocks = work_units(nc, n, 1)
+    nblocks = _work_units(nc, n, 1)
     nt = max(1, min(threads, nblocks))
     counter = np.zeros(1, dtype=np.int64)
     for t in numba.prange(nt):
@@ -752,7 +752,7 @@ class CPUBackend:
         else:
             mode = 0 if np.all(self._nc >= 3) else 1
         self._kernel = _step_lines if mode == 0 else _step_search
-        self._partial = np.zeros((work_units(self._nc, n, mode), 3))
+        self._partial = np.zeros((_work_units(self._nc, n, mode), 3))
         self._params = np.array([
             model.radius**2, model.k if model.neighbours == "topological" else 0, model.noise,
             model.noise_type == "vectorial", model.alignment, model.delay, model.dt,
