@@ -20,8 +20,8 @@ means metric neighbours. Kernels, in the order of a step:
     block totals, recursively);
 ``scatter`` / ``cell_sort``
     each particle into its cell's range by an atomic decrement, then each cell's range
-    sorted by particle id: the order (cell, then id) is a pure function of the state, as in
-    the cpu backend, so it depends neither on thread scheduling nor on restarts;
+    sorted by particle id: the order (cell, then id) is a pure function of the state (the
+    atomics leave any order), so it depends neither on thread scheduling nor on restarts;
 ``gather``
     the particle arrays into cell order, with each block's heading sum;
 ``reduce``
