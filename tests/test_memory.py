@@ -195,3 +195,27 @@ def test_writers_carry_on_over_several_runs_of_a_simulation(tmp_path):
         assert [int(fr.configuration.step) for fr in f] == [0, 2, 4, 6, 8]
     rows = (tmp_path / "o.csv").read_text().splitlines()
     assert rows[0] == "step,polar_order" and [int(r.split(",")[0]) for r in rows[1:]] == list(range(9))
+
+
+def test_small_frames_are_flushed_in_batches_and_by_sync(tmp_path, monkeypatch):
+    """gsd's flush fsyncs: small frames wait for the next flush (or a checkpoint's sync),
+    frame 0 does not."""
+    monkeypatch.setattr(GSDWriter, "flush_interval", 3600.0)
+    sim = Simulation(Model(n=100, box=8.0, seed=3))
+    writer = GSDWriter(tmp_path / "t.gsd", 1)
+    sim.writers.append(writer)
+    writer.begin(sim)
+    writer.write(sim)
+    for _ in range(3):
+        sim.backend.advance(1)
+        writer.write(sim)
+
+    def steps():
+        with gsd.hoomd.open(tmp_path / "t.gsd") as f:
+            return [int(fr.configuration.step) for fr in f]
+
+    assert steps() == [0]
+    sim.save_checkpoint(tmp_path / "c.npz")  # syncs the writers first
+    assert steps() == [0, 1, 2, 3]
+    writer.close()
+    assert steps() == [0, 1, 2, 3]

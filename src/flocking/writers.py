@@ -4,8 +4,9 @@ A writer has ``every`` (a period in steps, counted from the run's origin; ``0`` 
 the first and the last step of a run), ``begin(sim)`` (called once when a run starts),
 ``write(sim)`` (at each triggered step), ``observe(steps, phi)`` (the polar order of every
 step, in blocks), ``sync()`` (finish what is in flight; a checkpoint calls it first) and
-``close()``. Files are flushed as they go, so an interrupted run leaves valid files that
-hold everything written so far.
+``close()``. Files are flushed as they go (small GSD frames at least once a second, as
+each flush fsyncs), so an interrupted run leaves valid files that hold everything up to
+its last second, and everything up to its last checkpoint.
 
 >>> import flocking, tempfile, os
 >>> folder = tempfile.mkdtemp()
@@ -21,6 +22,7 @@ from __future__ import annotations
 import json
 import os
 import threading
+import time
 
 import numpy as np
 
@@ -83,9 +85,16 @@ class GSDWriter(Writer):
     simulation takes to compute the next ones no longer set the pace. One frame is in
     flight at most; :meth:`sync` waits for it, and an error in writing it is raised there,
     by the next :meth:`write` or by :meth:`close`.
+
+    gsd's flush makes frames visible to readers and durable (it calls ``fsync``, about a
+    millisecond). Large frames, frame 0, and small frames at least ``flush_interval``
+    seconds after the last flush are flushed as they are written; :meth:`sync` (which a
+    checkpoint calls) and :meth:`close` flush the rest. A run killed outright loses at
+    most that last second of small frames, none from before its last checkpoint.
     """
 
     threaded_from = 1 << 16
+    flush_interval = 1.0
 
     def __init__(self, path: str | os.PathLike, every: int = 100, mode: str = "w"):
         self.path = os.fspath(path)
@@ -98,6 +107,8 @@ class GSDWriter(Writer):
         self._buffers: tuple[np.ndarray, np.ndarray] | None = None  # a frame in flight
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
+        self._flushed = 0.0  # time.monotonic() of the last flush
+        self._dirty = False  # frames written since
 
     def begin(self, sim) -> None:
         if self._file is None:
@@ -146,7 +157,7 @@ class GSDWriter(Writer):
     def write(self, sim) -> None:
         if self._last is not None and sim.step <= self._last:
             return  # appending to a file that already holds this step
-        self.sync()  # the buffers are free again, and an earlier failure surfaces here
+        self._wait()  # the buffers are free again, and an earlier failure surfaces here
         model = sim.model
         # in double precision, as gsd.hoomd compares it (a box that float32 cannot hold
         # exactly differs from frame 0's and is written in every frame); stored in single
@@ -169,18 +180,28 @@ class GSDWriter(Writer):
             "particles/velocity": velocities,
         }
         self._last = sim.step
+        flush = threaded or self._file.nframes == 0 or time.monotonic() - self._flushed >= self.flush_interval
         if threaded:
-            self._thread = threading.Thread(target=self._write_frame, args=(chunks,), name="gsd-writer", daemon=True)
+            self._thread = threading.Thread(target=self._write_frame, args=(chunks, flush), name="gsd-writer",
+                                            daemon=True)
             self._thread.start()
         else:
-            self._write_frame(chunks)
-            self.sync()
+            self._write_frame(chunks, flush)
+            self._wait()
 
-    def _write_frame(self, chunks: dict[str, np.ndarray]) -> None:
+    def _write_frame(self, chunks: dict[str, np.ndarray], flush: bool) -> None:
         try:
             self._append(chunks)
-        except BaseException as err:  # raised in the caller's thread by sync()
+            self._dirty = True
+            if flush:
+                self._flush()
+        except BaseException as err:  # raised in the caller's thread by _wait()
             self._error = err
+
+    def _flush(self) -> None:
+        self._file.flush()
+        self._flushed = time.monotonic()
+        self._dirty = False
 
     def _append(self, chunks: dict[str, np.ndarray]) -> None:
         fresh = self._file.nframes == 0
@@ -190,19 +211,25 @@ class GSDWriter(Writer):
         if fresh:
             self._file.write_chunk("log/" + PARAMETERS_KEY, self._parameters)
         self._file.end_frame()
-        self._file.flush()
         if fresh:
+            self._file.flush()  # frame 0 is read back below, and makes the file a trajectory
             for name, data in chunks.items():
                 if self._file.chunk_exists(frame=0, name=name):
                     self._remember(name, self._file.read_chunk(frame=0, name=name) if data.size < _HEAD else data)
 
-    def sync(self) -> None:
+    def _wait(self) -> None:
+        """Let the frame in flight finish; raise its error, if it failed."""
         if self._thread is not None:
             self._thread.join()
             self._thread = None
         if self._error is not None:
             err, self._error = self._error, None
             raise err
+
+    def sync(self) -> None:
+        self._wait()
+        if self._dirty and self._file is not None:
+            self._flush()
 
     def close(self) -> None:
         try:
