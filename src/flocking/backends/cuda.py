@@ -168,7 +168,10 @@ class CUDABackend:
     def _prime_delay(self) -> None:
         """Fill every ring slot with the current sums: the initial state stands in for the past."""
         cuda, n, d = self._cuda, self.model.n, self.model.dim
-        once = cuda.device_array((1, d + 1, n), self._real)
+        # zeros: the priming step reads the slot before writing today's sums into it (and
+        # then moves particles with what it read, which is thrown away); garbage there could
+        # be NaN, which the CUDA simulator refuses to turn into a cell index
+        once = cuda.to_device(np.zeros((1, d + 1, n), self._real))
         scratch = cuda.device_array((d, n), self._real), cuda.device_array((d, n), self._real)
         counts = cuda.to_device(np.zeros(self._ncells, dtype=np.int32))
         self._launch_step(once, 1, 0, scratch[0], scratch[1], cuda.device_array(n, np.int32), counts)
