@@ -180,7 +180,7 @@ class GSDWriter(Writer):
             "particles/velocity": velocities,
         }
         self._last = sim.step
-        flush = threaded or self._file.nframes == 0 or time.monotonic() - self._flushed >= self.flush_interval
+        flush = threaded or time.monotonic() - self._flushed >= self.flush_interval
         if threaded:
             self._thread = threading.Thread(target=self._write_frame, args=(chunks, flush), name="gsd-writer",
                                             daemon=True)
@@ -192,8 +192,7 @@ class GSDWriter(Writer):
     def _write_frame(self, chunks: dict[str, np.ndarray], flush: bool) -> None:
         try:
             self._append(chunks)
-            self._dirty = True
-            if flush:
+            if flush and self._dirty:
                 self._flush()
         except BaseException as err:  # raised in the caller's thread by _wait()
             self._error = err
@@ -211,8 +210,9 @@ class GSDWriter(Writer):
         if fresh:
             self._file.write_chunk("log/" + PARAMETERS_KEY, self._parameters)
         self._file.end_frame()
+        self._dirty = True
         if fresh:
-            self._file.flush()  # frame 0 is read back below, and makes the file a trajectory
+            self._flush()  # frame 0 is read back below, and makes the file a trajectory
             for name, data in chunks.items():
                 if self._file.chunk_exists(frame=0, name=name):
                     self._remember(name, self._file.read_chunk(frame=0, name=name) if data.size < _HEAD else data)
