@@ -239,6 +239,15 @@ def _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d):
     return np.int64(m)
 
 
+@numba.njit(cache=True, inline="always")
+def _neighbour_line(gy, gz, r, nc, box, d):
+    """The ``r``-th of the 3 (3D: 9) lines around line ``(gy, gz)``: its first cell and
+    the shifts (y, z) to its periodic image nearest that line."""
+    hz, shz = _neighbour_row(gz + r // 3 - 1, nc[d - 1], box[d - 1]) if d == 3 else (0, 0.0)
+    hy, shy = _neighbour_row(gy + r % 3 - 1, nc[1], box[1])
+    return (hz * nc[1] + hy) * nc[0], shy, shz
+
+
 @numba.njit(cache=True)
 def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d):
     """Copy what the cells ``c0..c1-1`` of a line of cells need into ``buf``; returns how
@@ -258,7 +267,7 @@ def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d
     nr = rows.shape[0]
     need = 0
     for r in range(nr):
-        row0 = (((gz + r // 3 - 1) % nc[2] if d == 3 else 0) * ny + (gy + r % 3 - 1) % ny) * nx
+        row0, _, _ = _neighbour_line(gy, gz, r, nc, box, d)
         need += start[row0 + min(c1 + 1, nx)] - start[row0 + max(c0 - 1, 0)] + 3
         if c0 == 0:
             need += start[row0 + nx] - start[row0 + nx - 1]
@@ -268,12 +277,7 @@ def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d
         return -1
     m = 0
     for r in range(nr):
-        shz = 0.0
-        hz_ = 0
-        if d == 3:
-            hz_, shz = _neighbour_row(gz + r // 3 - 1, nc[2], box[2])
-        hy_, shy = _neighbour_row(gy + r % 3 - 1, ny, box[1])
-        row0 = (hz_ * ny + hy_) * nx
+        row0, shy, shz = _neighbour_line(gy, gz, r, nc, box, d)
         rows[r, 0] = row0
         rows[r, 1] = m
         if c0 == 0:
