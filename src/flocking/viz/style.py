@@ -1,0 +1,185 @@
+"""The house style of every chart the project draws: runs, analysis, sweeps.
+
+One look in two themes (``dark`` for slides and screens, ``light`` for paper), sizes
+named for where a figure goes, labels in mathtext, a title with the parameters that
+matter wrapped to the figure's width, and output by file extension (``.png``, ``.svg``,
+``.pdf``). Figures are plain :class:`matplotlib.figure.Figure` objects on an Agg
+canvas: no display and no pyplot state are involved.
+
+>>> fig, ax = figure("column", theme="light")
+>>> _ = ax.plot([0, 1], [0, 1], color=palette("light")[0])
+>>> label_axes(ax, "step", "phi")
+>>> ax.get_ylabel()
+'polar order $\\\\varphi$'
+>>> float(fig.get_figwidth())
+3.4
+>>> check_format("run.tiff")
+Traceback (most recent call last):
+...
+flocking.model.ParameterError: output: must end in .png, .svg or .pdf (got 'run.tiff')
+"""
+
+from __future__ import annotations
+
+import os
+import textwrap
+
+import numpy as np
+
+from ..model import ParameterError
+from .colors import get_theme
+
+#: Figure sizes in inches (width, height): a paper column, two columns, a slide.
+SIZES = {
+    "column": (3.4, 2.6),
+    "page": (7.0, 3.2),
+    "slide": (8.0, 4.5),
+}
+
+#: Base font size (points) of each size: what journals ask of a column figure, what
+#: reads from the back of a room on a slide.
+FONT_SIZES = {"column": 8.0, "page": 9.0, "slide": 13.0}
+
+#: File formats a figure can be written to, by extension.
+FORMATS = ("png", "svg", "pdf")
+
+#: Default resolution of raster output (dots per inch).
+DPI = 200
+
+#: Axis labels of the quantities the project plots, in mathtext.
+LABELS = {
+    "step": "step $t$",
+    "time": r"time $t\,\Delta t$",
+    "phi": r"polar order $\varphi$",
+    "mean_phi": r"order $\langle\varphi\rangle$",
+    "chi": r"susceptibility $\chi$",
+    "binder": r"Binder cumulant $G$",
+    "eta": r"noise $\eta$",
+    "n": "particles $N$",
+    "density": r"density $\rho$",
+    "r": "distance $r$",
+    "corr": "$C(r)$",
+    "mean_count": r"$\langle n\rangle$",
+    "count_std": r"$\Delta n$",
+    "lag": r"lag $\tau$",
+    "msd": r"$\langle|\Delta\mathbf{r}|^2\rangle$",
+    "box_size": r"box size $\ell$",
+    "boxes": r"occupied boxes $N(\ell)$",
+    "cluster_size": "cluster size $s$",
+    "x": "$x$",
+    "profile": r"density $\rho(x)$",
+}
+
+#: Line colours that read on both backgrounds, in the order curves take them.
+_PALETTES = {
+    "dark": ("#4cc9f0", "#f4a261", "#90be6d", "#f15bb5", "#c77dff", "#ffd166", "#e5e5e5"),
+    "light": ("#1f5fa8", "#d1495b", "#2e8540", "#8e44ad", "#e08e0b", "#00798c", "#444444"),
+}
+
+
+def palette(theme="dark") -> tuple[str, ...]:
+    """Colours for successive curves in ``theme``."""
+    return _PALETTES[get_theme(theme).name]
+
+
+def check_format(path: str | os.PathLike) -> str:
+    """The format of ``path`` from its extension, refused unless it is one of :data:`FORMATS`."""
+    ext = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")
+    if ext not in FORMATS:
+        raise ParameterError(f"output: must end in .png, .svg or .pdf (got {os.fspath(path)!r})")
+    return ext
+
+
+def figure(size="column", theme="dark", nrows: int = 1, ncols: int = 1, **subplots):
+    """A new ``(fig, axes)`` in the house style; ``size`` is a name of :data:`SIZES` or
+    ``(width, height)`` in inches. Layout is constrained, so labels are never clipped."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    t = get_theme(theme)
+    if isinstance(size, str):
+        if size not in SIZES:
+            raise ParameterError(f"size: must be one of {', '.join(SIZES)} or (width, height) (got {size!r})")
+        fontsize, size = FONT_SIZES[size], SIZES[size]
+    else:
+        fontsize = float(np.interp(size[0], [3.4, 7.0, 8.0], [8.0, 9.0, 13.0]))
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)
+    fig.set_facecolor(t.figure)
+    fig._flocking_theme = t.name  # read by the helpers below
+    fig._flocking_fontsize = fontsize
+    axes = fig.subplots(nrows, ncols, squeeze=True, **subplots)
+    for ax in np.atleast_1d(axes).ravel():
+        style_axes(ax, t)
+    return fig, axes
+
+
+def fontsize(fig) -> float:
+    """The base font size of a figure made by :func:`figure` (10 for any other)."""
+    return getattr(fig, "_flocking_fontsize", 10.0)
+
+
+def style_axes(ax, theme="dark") -> None:
+    """Colours, ticks, grid and spines of one axes in ``theme``."""
+    t = get_theme(theme)
+    ax.set_facecolor(t.background if t.name == "dark" else t.figure)
+    ax.tick_params(colors=t.text, which="both", labelsize=0.9 * fontsize(ax.figure))
+    ax.xaxis.label.set_color(t.text)
+    ax.yaxis.label.set_color(t.text)
+    ax.title.set_color(t.text)
+    ax.grid(color=t.edge, alpha=0.35, lw=0.5)
+    for spine in ax.spines.values():
+        spine.set_color(t.edge)
+
+
+def label_axes(ax, x: str | None = None, y: str | None = None) -> None:
+    """Axis labels, by key of :data:`LABELS` or as given."""
+    size = fontsize(ax.figure)
+    if x is not None:
+        ax.set_xlabel(LABELS.get(x, x), fontsize=size)
+    if y is not None:
+        ax.set_ylabel(LABELS.get(y, y), fontsize=size)
+
+
+def legend(ax, theme="dark", **options):
+    """A frameless legend whose text follows the theme."""
+    t = get_theme(theme)
+    options.setdefault("fontsize", 0.85 * fontsize(ax.figure))
+    options.setdefault("frameon", False)
+    return ax.legend(labelcolor=t.text, **options)
+
+
+def wrap_text(text: str, fig, fontsize: float) -> str:
+    """``text`` broken at ``" · "`` or spaces into lines that fit the figure's width."""
+    width_pt = fig.get_figwidth() * 72
+    chars = max(20, int(width_pt / (0.55 * fontsize)))  # average glyph is ~0.55 em wide
+    parts = text.split(" \u00b7 ")
+    lines, line = [], ""
+    for part in parts:
+        candidate = part if not line else f"{line} \u00b7 {part}"
+        if len(candidate) <= chars or not line:
+            line = candidate
+        else:
+            lines.append(line)
+            line = part
+    lines.append(line)
+    return "\n".join(textwrap.fill(x, chars) if len(x) > chars else x for x in lines)
+
+
+def title(fig, main: str, details: str = "") -> None:
+    """A bold ``main`` title on top and, if given, a caption of ``details`` (the
+    parameters, joined by ``" · "``) along the bottom; both wrapped to the figure's width
+    and placed by the constrained layout, so neither is ever clipped."""
+    t = get_theme(getattr(fig, "_flocking_theme", "dark"))
+    size = 1.1 * fontsize(fig)
+    fig.suptitle(wrap_text(main, fig, size), color=t.text, fontsize=size, fontweight="bold")
+    if details:
+        fig.supxlabel(wrap_text(details, fig, 0.8 * size), color=t.text, fontsize=0.8 * size, alpha=0.85)
+
+
+def save(fig, path: str | os.PathLike, dpi: float | None = None) -> str:
+    """Write ``fig`` to ``path`` in the format its extension names; returns the path."""
+    check_format(path)
+    path = os.fspath(path)
+    fig.savefig(path, dpi=dpi or DPI, facecolor=fig.get_facecolor())
+    return path
