@@ -20,7 +20,7 @@ if "NUMBA_SLP_VECTORIZE" not in os.environ:
         sys.modules["numba"].config.reload_config()
 
 from .model import Model, ParameterError  # noqa: E402
-from .simulation import Simulation  # noqa: E402
+from .simulation import NonFiniteError, Simulation  # noqa: E402
 from .state import State  # noqa: E402
 from .trajectory import Frame, Trajectory, open  # noqa: E402
 from .writers import CheckpointWriter, GSDWriter, ObservablesWriter, Writer  # noqa: E402
@@ -41,6 +41,6 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'flocking' has no attribute {name!r}")
 
 __all__ = [
-    "CheckpointWriter", "Frame", "GSDWriter", "Model", "ObservablesWriter", "ParameterError", "Simulation",
+    "CheckpointWriter", "Frame", "GSDWriter", "Model", "NonFiniteError", "ObservablesWriter", "ParameterError", "Simulation",
     "State", "Trajectory", "Writer", "animate", "open", "plot_frame", "__version__",
 ]

@@ -41,6 +41,10 @@ CHOICES = {
 #: Above this many particles a model is refused: the state alone would not fit in memory.
 MAX_PARTICLES = 2_000_000_000
 
+#: Largest vectorial noise amplitude. Beyond about 10 the noise term already swamps every
+#: sum of headings; the bound keeps ``eta * n_i`` far from overflowing.
+MAX_VECTORIAL_NOISE = 1000.0
+
 
 class ParameterError(ValueError):
     """An invalid parameter; the message names the parameter and what is allowed."""
@@ -162,9 +166,20 @@ class Model:
             noise = _real("noise", noise, low=0.0, high=2.0 * math.pi,
                           allowed="in [0, 2*pi] for angular noise")
         else:
-            noise = _real("noise", noise, low=0.0)
+            noise = _real("noise", noise, low=0.0, high=MAX_VECTORIAL_NOISE,
+                          allowed=f"in [0, {MAX_VECTORIAL_NOISE:g}] for vectorial noise")
         put("noise", noise)
         self._resolve_size()
+        self._check_step_length()
+
+    def _check_step_length(self) -> None:
+        """A step moves a particle at most ``speed * dt``: it must be finite and at most the
+        smallest box side (a longer step would wrap around the box more than once, and an
+        overflowing one would leave the box altogether)."""
+        side = min(self.box)
+        if not self.speed * self.dt <= side:  # also refuses an overflow to inf
+            _fail("speed", f"at most {side / self.dt:.6g} with dt = {self.dt:g}, so that one step "
+                  f"(speed * dt) covers at most the smallest box side, {side:.6g}", self.speed)
 
     def _resolve_size(self) -> None:
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
@@ -184,8 +199,8 @@ class Model:
             else:
                 box = ((n / density) ** (1.0 / self.dim),) * self.dim
         volume = math.prod(box)
-        if not math.isfinite(volume):
-            _fail("box", "sides whose product (the volume) is a finite number", box)
+        if not (math.isfinite(volume) and volume > 0):
+            _fail("box", "sides whose product (the volume) is a finite number above 0", box)
         if n is None:
             if not density * volume <= MAX_PARTICLES:  # n = density * volume, within bounds
                 if self.density is None:

@@ -27,6 +27,12 @@ from .state import State
 _CHUNK_WORK = 2_000_000
 
 
+class NonFiniteError(RuntimeError):
+    """The state became NaN or infinite: only a state given from outside, with headings
+    far from unit length, can do that (a validated model keeps a state of unit headings
+    finite). The message is one line."""
+
+
 class Simulation:
     """Runs a :class:`Model` from a :class:`State` on a backend.
 
@@ -47,7 +53,9 @@ class Simulation:
        about two million particle-steps, or the end);
     3. writers ``observe`` the polar order of those steps, then the due ones ``write``;
     4. a stop request (:meth:`request_stop`, e.g. from a signal handler) ends the run
-       there, every writer writing that step; writers are closed at the end either way.
+       there, every writer writing that step; writers are closed at the end either way;
+    5. a non-finite polar order ends the run with :class:`NonFiniteError`, after the
+       writers have observed the steps before it.
     """
 
     def __init__(self, model: Model, state: State | None = None, backend: str = "cpu",
@@ -57,6 +65,10 @@ class Simulation:
         state = State.random(model) if state is None else state
         if state.n != model.n or state.dim != model.dim:
             raise ValueError("state: its particle count or dimension differs from the model's")
+        bad = np.count_nonzero(~np.isfinite(state.positions).all(axis=1) | ~np.isfinite(state.headings).all(axis=1))
+        if bad:
+            raise ParameterError(f"state: positions and headings must be finite ({bad} particles have NaN or "
+                                 "infinite ones)")
         self.backend = backends.get(backend)(model, state, memory=memory, **options)
         self.backend_options = options
         self.writers: list = []
@@ -107,6 +119,8 @@ class Simulation:
             while step < last and not self._stop:
                 target = min(last, step + chunk, *(_next_due(w, step, self.origin, last) for w in self.writers))
                 phi = self.backend.advance(target - step)
+                if not np.isfinite(phi).all():
+                    self._non_finite(step, phi)
                 if self.history:
                     self.polar_order.extend(phi)
                 else:
@@ -130,6 +144,17 @@ class Simulation:
                     errors.append(err)
             if errors and sys.exc_info()[0] is None:
                 raise errors[0]
+
+    def _non_finite(self, step: int, phi: np.ndarray) -> None:
+        """Hand writers the finite steps of ``phi`` (which follow ``step``), then stop the run."""
+        good = int(np.argmin(np.isfinite(phi)))
+        if good:
+            done = np.arange(step + 1, step + good + 1)
+            for w in self.writers:
+                w.observe(done, phi[:good])
+        raise NonFiniteError(
+            f"the run became non-finite at step {step + good + 1} (polar order {phi[good]}): a position or "
+            f"heading is NaN or infinite; the files hold every step before it")
 
     # -- checkpoints ---------------------------------------------------------------------
 

@@ -113,6 +113,13 @@ class State:
             raise ParameterError(f"init: the file has {frame.n} particles but n={model.n}")
         if not np.allclose(frame.box_lengths, model.box, rtol=1e-6):
             raise ParameterError(f"init: the file's box {tuple(frame.box_lengths)} differs from box={model.box}")
+        if not (np.isfinite(frame.positions).all() and np.isfinite(frame.headings).all()):
+            raise ParameterError(f"init: the last frame of {os.fspath(path)!r} holds NaN or infinite "
+                                 "positions or velocities")
+        norms = np.linalg.norm(frame.headings, axis=1)
+        if not (norms > 0).all():
+            raise ParameterError(f"init: the last frame of {os.fspath(path)!r} has particles with zero "
+                                 "velocity, so no heading")
         box = np.asarray(model.box)
         positions = np.mod(frame.positions.astype(np.float64) + box / 2, box)
         positions = np.where(positions >= box, 0.0, positions)

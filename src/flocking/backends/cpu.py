@@ -131,12 +131,17 @@ def _prefetch(typingctx, ring, slot, pid):
 
 @numba.njit(cache=True, inline="always")
 def _cell_of(pos, i, nc, inv):
-    """Row-major cell index with x fastest, so a row of cells is contiguous."""
+    """Row-major cell index with x fastest, so a row of cells is contiguous.
+
+    Always a valid cell, whatever the coordinate: below 0 or NaN gives the first cell of
+    the axis, beyond the box the last (a state read from a foreign file may hold anything;
+    the step then stays in bounds and the non-finite polar order tells the caller)."""
     c = 0
     for a in range(pos.shape[0] - 1, -1, -1):
-        ca = int(pos[a, i] * inv[a])
-        if ca >= nc[a]:
-            ca = nc[a] - 1
+        x = pos[a, i] * inv[a]
+        ca = 0
+        if x >= 1.0:  # False for NaN
+            ca = nc[a] - 1 if x >= nc[a] else int(x)
         c = c * nc[a] + ca
     return c
 

@@ -12,6 +12,7 @@ import sys
 import click
 
 from ..model import ParameterError
+from ..simulation import NonFiniteError
 
 
 class Main(click.Group):
@@ -28,6 +29,9 @@ class Main(click.Group):
             ctx.exit(2)
         except OSError as err:
             click.echo(f"Error: {err.strerror or err}: {err.filename or ''}".rstrip(": "), err=True)
+            ctx.exit(1)
+        except NonFiniteError as err:
+            click.echo(f"Error: {err}", err=True)
             ctx.exit(1)
 
 

@@ -205,6 +205,9 @@ def warm_up(cfg: RunConfig) -> float:
     from ..state import State
 
     start = time.perf_counter()
-    tiny = cfg.model.replace(n=min(cfg.model.n, 64), density=cfg.model.density)
+    model = cfg.model
+    # the kernels compiled depend on the types, not the values: a speed that suits the
+    # tiny box (whose side may be below twice the real step) compiles the same code
+    tiny = model.replace(n=min(model.n, 64), density=model.density, speed=1e-3, dt=1.0)
     Simulation(tiny, State.random(tiny), backend=cfg.backend, **cfg.backend_options()).run(2)
     return time.perf_counter() - start
