@@ -36,6 +36,7 @@ CHOICES = {
     "noise_type": ("angular", "vectorial"),
     "update": ("backward", "forward"),
     "noise_scale": ("radians", "unit"),
+    "alignment_rule": ("polar", "nematic"),
 }
 
 #: Above this many particles a model is refused: the state alone would not fit in memory.
@@ -91,6 +92,30 @@ def _choice(name: str, value: Any) -> Any:
     return value
 
 
+def _speed(name: str, value: Any) -> float:
+    return _real(name, value, low=0.0, low_open=True,
+                 allowed=None if name == "speed" else "speeds that are finite numbers > 0")
+
+
+def _noise(name: str, value: Any, noise_type: str, scale: str, where: str = "") -> float:
+    """A noise amplitude in the model's stored form (radians for angular noise)."""
+    suffix = f" ({where})" if where else ""
+    if scale == "unit":
+        value = _real(name, value, low=0.0, high=1.0, allowed=f"in [0, 1]{suffix}")
+        if noise_type == "angular":
+            value = 2.0 * math.pi * value
+    if noise_type == "angular":
+        return _real(name, value, low=0.0, high=2.0 * math.pi, allowed=f"in [0, 2*pi] for angular noise{suffix}")
+    return _real(name, value, low=0.0, high=MAX_VECTORIAL_NOISE,
+                 allowed=f"in [0, {MAX_VECTORIAL_NOISE:g}] for vectorial noise{suffix}")
+
+
+def _field_strength(name: str, value: Any, where: str = "") -> float:
+    suffix = f" ({where})" if where else ""
+    return _real(name, value, low=0.0, high=MAX_VECTORIAL_NOISE,
+                 allowed=f"in [0, {MAX_VECTORIAL_NOISE:g}]{suffix}")
+
+
 def parse_box(value: Any, dim: int) -> tuple[float, ...] | None:
     """A box from a number, a sequence, or a string such as ``"4,5"``; one length per axis."""
     if value is None:
@@ -139,16 +164,25 @@ class Model:
     dt: float = 1.0
     update: str = "backward"
     seed: int = 0
+    boundary: Any = "periodic"
+    obstacles: Any = ()
+    species: Any = ()
+    coupling: Any = None
+    vision: float = math.pi
+    alignment_rule: str = "polar"
+    chirality: float = 0.0
+    field: Any = None
+    field_strength: float = 0.0
     noise_scale: dataclasses.InitVar[str] = "radians"
 
     def __post_init__(self, noise_scale: str) -> None:
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         dim = _integer("dim", self.dim, 2)
         put("dim", _choice("dim", dim))
-        for name in ("speeds", "neighbours", "noise_type", "update"):
+        for name in ("speeds", "neighbours", "noise_type", "update", "alignment_rule"):
             _choice(name, getattr(self, name))
         _choice("noise_scale", noise_scale)
-        put("speed", _real("speed", self.speed, low=0.0, low_open=True))
+        put("speed", _speed("speed", self.speed))
         put("radius", _real("radius", self.radius, low=0.0, low_open=True, high=1e150))  # R^2 must be finite
         put("k", _integer("k", self.k, 1))
         put("alignment", _real("alignment", self.alignment, low=0.0, high=1.0))
@@ -157,29 +191,74 @@ class Model:
         put("seed", _integer("seed", self.seed, 0))
         if self.seed >= 2**63:
             _fail("seed", "a whole number in [0, 2**63)", self.seed)
-        noise = self.noise
-        if noise_scale == "unit":
-            noise = _real("noise", noise, low=0.0, high=1.0)
-            if self.noise_type == "angular":
-                noise = 2.0 * math.pi * noise
-        if self.noise_type == "angular":
-            noise = _real("noise", noise, low=0.0, high=2.0 * math.pi,
-                          allowed="in [0, 2*pi] for angular noise")
-        else:
-            noise = _real("noise", noise, low=0.0, high=MAX_VECTORIAL_NOISE,
-                          allowed=f"in [0, {MAX_VECTORIAL_NOISE:g}] for vectorial noise")
-        put("noise", noise)
+        put("noise", _noise("noise", self.noise, self.noise_type, noise_scale))
+        self._parse_extensions(noise_scale)
         self._resolve_size()
+        if self.species:
+            counts = ext.species_counts(self.species, self.n)
+            put("species", tuple(dataclasses.replace(s, n=c) for s, c in zip(self.species, counts)))
         self._check_step_length()
+        ext.check_obstacles(self.obstacles, self.box, self.walls, self.max_speed * self.dt)
+
+    def _parse_extensions(self, noise_scale: str) -> None:
+        """Walls, obstacles, species, coupling, vision, chirality and field (MODEL.md's
+        extensions), each checked on its own; checks against the box follow its resolution."""
+        put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
+        dim = self.dim
+        put("boundary", ext.parse_boundary(self.boundary, dim))
+        put("obstacles", ext.parse_obstacles(self.obstacles, dim))
+        species = ext.parse_species(self.species, dim)
+        checked = []
+        for sp in species:
+            where = f"species {sp.name!r}"
+            values = {}
+            if sp.speed is not None:
+                values["speed"] = _speed(f"species: {where} speed", sp.speed)
+            if sp.speeds is not None and sp.speeds not in CHOICES["speeds"]:
+                _fail("species", f"speeds one of 'constant', 'uniform' ({where})", sp.speeds)
+            if sp.noise is not None:
+                values["noise"] = _noise("species", sp.noise, self.noise_type, noise_scale, where)
+            if sp.alignment is not None:
+                values["alignment"] = _real("species", sp.alignment, low=0.0, high=1.0,
+                                            allowed=f"alignment in [0, 1] ({where})")
+            if sp.chirality is not None:
+                values["chirality"] = self._chirality("species", sp.chirality, where)
+            if sp.field_strength is not None:
+                values["field_strength"] = _field_strength("species", sp.field_strength, where)
+            checked.append(dataclasses.replace(sp, **values))
+        put("species", tuple(checked))
+        if checked and checked[0].n is not None and self.n is None and (self.density is None or self.box is None):
+            put("n", sum(ext.species_counts(self.species, None)))  # counts given: they make n
+        put("coupling", ext.parse_coupling(self.coupling, max(len(checked), 1)))
+        put("vision", _real("vision", self.vision, low=0.0, low_open=True, high=math.pi,
+                            allowed="a half-angle in (0, pi]"))
+        put("chirality", self._chirality("chirality", self.chirality))
+        put("field", ext.parse_field(self.field, dim))
+        put("field_strength", _field_strength("field_strength", self.field_strength))
+        if self.field is None and any(h > 0 for h in self.species_values("field_strength")):
+            raise ParameterError("field: must be given (a direction such as 1,0) when a field_strength is above 0")
+
+    def _chirality(self, name: str, value: Any, where: str = "") -> float:
+        omega = _real(name, value, allowed=f"a finite number{f' ({where})' if where else ''}")
+        if omega != 0.0 and self.dim == 3:
+            _fail(name, f"0 in 3D: chirality is a turn in the plane{f' ({where})' if where else ''}", omega)
+        if not abs(omega) * self.dt <= math.pi:
+            _fail(name, f"at most pi / dt = {math.pi / self.dt:.6g} in magnitude: a turn of at most half a "
+                        f"circle a step{f' ({where})' if where else ''}", omega)
+        return omega
 
     def _check_step_length(self) -> None:
-        """A step moves a particle at most ``speed * dt``: it must be finite and at most the
-        smallest box side (a longer step would wrap around the box more than once, and an
-        overflowing one would leave the box altogether)."""
-        side = min(self.box)
-        if not self.speed * self.dt <= side:  # also refuses an overflow to inf
-            _fail("speed", f"at most {side / self.dt:.6g} with dt = {self.dt:g}, so that one step "
-                  f"(speed * dt) covers at most the smallest box side, {side:.6g}", self.speed)
+        """A step moves a particle at most ``max_speed * dt``: it must be finite and at most
+        the smallest periodic box side (a longer step would wrap around the box more than
+        once, and an overflowing one would leave the box altogether), and below half of
+        every side bounded by walls."""
+        step, name = self.max_speed * self.dt, "speed" if not self.species else "species"
+        for length, wall in zip(self.box, self.walls):
+            limit, words = (length / 2, "half of each side with walls") if wall else (length, "the smallest box side")
+            if not (step < limit if wall else step <= limit):  # also refuses an overflow to inf
+                allowed = (f"{'below' if wall else 'at most'} {limit / self.dt:.6g} with dt = {self.dt:g}, so that "
+                           f"one step (speed * dt) covers {'less than' if wall else 'at most'} {words}, {limit:.6g}")
+                _fail(name, allowed, self.max_speed)
 
     def _resolve_size(self) -> None:
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
@@ -217,13 +296,78 @@ class Model:
         put("box", box)
         put("density", n / volume)
 
+    # -- the extensions, resolved --------------------------------------------------------
+
+    @property
+    def walls(self) -> tuple[bool, ...]:
+        """Per axis, whether it is bounded by walls."""
+        return tuple(b == "wall" for b in self.boundary)
+
+    @property
+    def species_counts(self) -> tuple[int, ...]:
+        """Particles of each species (one species, all of them, when none are given);
+        species ``s`` holds the ids from the sum of the earlier counts on."""
+        return tuple(sp.n for sp in self.species) if self.species else (self.n,)
+
+    @property
+    def species_names(self) -> tuple[str, ...]:
+        return tuple(sp.name for sp in self.species) if self.species else ("A",)
+
+    def species_values(self, name: str) -> tuple[Any, ...]:
+        """One parameter (``speed``, ``speeds``, ``noise``, ``alignment``, ``chirality``,
+        ``field_strength``) for each species: its own value, or the global one.
+
+        >>> Model(n=10, box=5, species=[{"n": 4}, {"n": 6, "noise": 2.0}]).species_values("noise")
+        (1.0, 2.0)
+        """
+        if not self.species:
+            return (getattr(self, name),)
+        return tuple(getattr(self, name) if getattr(sp, name) is None else getattr(sp, name) for sp in self.species)
+
+    @property
+    def field_direction(self) -> tuple[float, ...] | None:
+        """The field's unit direction ``g`` (``field`` holds the direction as given)."""
+        if self.field is None:
+            return None
+        norm = math.sqrt(sum(x * x for x in self.field))
+        return tuple(x / norm for x in self.field)
+
+    @property
+    def max_speed(self) -> float:
+        return max(self.species_values("speed"))
+
+    @property
+    def extended(self) -> bool:
+        """Whether any extension beyond the plain model is on (a single species that changes
+        only the speeds is not one: the plain step takes a speed per particle)."""
+        plain_species = len(self.species) <= 1 and all(
+            getattr(sp, name) is None for sp in self.species for name in ("noise", "alignment"))
+        return not (plain_species and not any(self.walls) and not self.obstacles and self.coupling is None
+                    and self.vision == math.pi and self.alignment_rule == "polar"
+                    and not any(self.species_values("chirality")) and not any(self.species_values("field_strength")))
+
     # -- conversions -------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
-        """Every parameter, resolved (``n`` and ``box``; ``density`` follows from them)."""
-        d = dataclasses.asdict(self)
+        """Every parameter, resolved (``n`` and ``box``; ``density`` follows from them).
+        The extensions appear only where they differ from the plain model."""
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in EXTENSION_DEFAULTS}
         del d["density"]
         d["box"] = list(self.box)
+        for name, default in EXTENSION_DEFAULTS.items():
+            value = getattr(self, name)
+            if name == "boundary":
+                value = value[0] if len(set(value)) == 1 else ",".join(value)
+            if value != default and value is not None:
+                d[name] = value
+        if self.obstacles:
+            d["obstacles"] = [o.to_dict() for o in self.obstacles]
+        if self.species:
+            d["species"] = [sp.to_dict() for sp in self.species]
+        if self.coupling is not None:
+            d["coupling"] = [list(row) for row in self.coupling]
+        if self.field is not None:
+            d["field"] = list(self.field)
         return d
 
     @classmethod
@@ -257,10 +401,31 @@ class Model:
             text += f", alignment={self.alignment:g}"
         if self.delay:
             text += f", delay={self.delay}"
+        if any(self.walls):
+            text += f", walls {'all' if all(self.walls) else 'on ' + ''.join('xyz'[a] for a, w in enumerate(self.walls) if w)}"
+        if self.obstacles:
+            text += f", {len(self.obstacles)} obstacle{'s' * (len(self.obstacles) > 1)}"
+        if self.species:
+            text += ", species " + "+".join(f"{sp.name}:{sp.n}" for sp in self.species)
+        if self.coupling is not None:
+            text += ", coupling " + str([list(r) for r in self.coupling]).replace(" ", "")
+        if self.vision != math.pi:
+            text += f", vision {self.vision:.4g}"
+        if self.alignment_rule != "polar":
+            text += f", {self.alignment_rule}"
+        if self.chirality:
+            text += f", chirality {self.chirality:g}"
+        if self.field_strength or any(self.species_values("field_strength")):
+            text += f", field {tuple(round(g, 4) for g in self.field_direction)} strength {self.field_strength:g}"
         return text
 
 
 MODEL_KEYS = tuple(f.name for f in dataclasses.fields(Model)) + ("noise_scale",)
+
+#: The extensions' parameters and their values when off (as :meth:`Model.to_dict` writes them).
+EXTENSION_DEFAULTS = {"boundary": "periodic", "obstacles": (), "species": (), "coupling": None,
+                      "vision": math.pi, "alignment_rule": "polar", "chirality": 0.0, "field": None,
+                      "field_strength": 0.0}
 
 
 def check_keys(data: dict[str, Any], allowed: tuple[str, ...]) -> None:
@@ -287,16 +452,23 @@ def _toml_value(value: Any) -> str:
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items() if v is not None) + "}"
     raise TypeError(f"cannot write {value!r} to TOML")
 
 
-def dumps_toml(data: dict[str, Any]) -> str:
-    """A flat mapping of scalars and lists as TOML (``None`` values are left out).
+def _toml_key(key: str) -> str:
+    return key if key.replace("_", "").replace("-", "").isalnum() and key.isascii() else _toml_value(key)
 
-    >>> print(dumps_toml({"n": 3, "box": [4.0, 5.0], "update": "forward"}), end="")
+
+def dumps_toml(data: dict[str, Any]) -> str:
+    """A mapping of scalars, lists and tables (written inline) as TOML (``None`` values
+    are left out).
+
+    >>> print(dumps_toml({"n": 3, "box": [4.0, 5.0], "obstacles": [{"centre": [1.0, 2.0], "radius": 0.5}]}), end="")
     n = 3
     box = [4.0, 5.0]
-    update = "forward"
+    obstacles = [{centre = [1.0, 2.0], radius = 0.5}]
     """
     return "".join(f"{k} = {_toml_value(v)}\n" for k, v in data.items() if v is not None)
 
@@ -307,3 +479,6 @@ def loads_toml(text: str, source: str = "config") -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ParameterError(f"{source}: not valid TOML ({err})") from None
+
+
+from . import extensions as ext  # noqa: E402 - it builds on ParameterError and the checks above

@@ -1,9 +1,23 @@
-"""Statistics of the polar order over a window: the quantities of MODEL.md (Observables).
+"""Observables of a step and statistics of the polar order over a window.
+
+Every step records the polar order ``phi = |sum_i u_i| / N``; a model with several species
+also records each species' polar order (``polar_order_<name>``), and a model with nematic
+alignment the nematic order (``nematic_order``: in 2D ``|sum_i exp(2 i theta_i)| / N``, in
+3D the largest eigenvalue of ``Q = (3/2) <u u^T> - (1/2) I``). Backends hand these over as
+*moment sums* (:func:`moment_sums`: per species the sum of headings, then the sums of the
+nematic products), which :func:`extra_values` turns into the columns :func:`extra_names`.
 
 >>> import numpy as np
 >>> m = polar_moments(np.array([0.5, 0.5, 0.5]), n=100)
 >>> m["mean"], m["susceptibility"], round(m["binder"], 6)
 (0.5, 0.0, 0.666667)
+>>> from flocking import Model
+>>> model = Model(n=4, box=4.0, alignment_rule="nematic", species=[{"n": 2}, {"n": 2, "name": "B"}])
+>>> extra_names(model)
+('polar_order_A', 'polar_order_B', 'nematic_order')
+>>> u = np.array([[1.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0]])
+>>> [round(float(x), 12) for x in extra_values(model, moment_sums(model, u))]
+[1.0, 0.707106781187, 0.5]
 """
 
 from __future__ import annotations
@@ -21,3 +35,57 @@ def polar_moments(phi, n: int) -> dict[str, float]:
     binder = 1.0 - m4 / (3.0 * m2 * m2) if m2 > 0 else float("nan")
     return {"mean": float(mean), "phi2": float(m2), "phi4": float(m4),
             "susceptibility": float(n * (m2 - mean * mean)), "binder": float(binder)}
+
+
+def extra_names(model) -> tuple[str, ...]:
+    """The columns a step records beyond ``polar_order``, for ``model``."""
+    names = tuple(f"polar_order_{name}" for name in model.species_names) if len(model.species) > 1 else ()
+    return names + (("nematic_order",) if model.alignment_rule == "nematic" else ())
+
+
+def moment_width(model) -> int:
+    """Length of a vector of moment sums: ``dim`` per species, then the nematic products
+    (2 in 2D, 6 in 3D) if the model records the nematic order."""
+    nematic = (2 if model.dim == 2 else 6) if model.alignment_rule == "nematic" else 0
+    return model.dim * len(model.species_counts) + nematic
+
+
+def moment_sums(model, headings: np.ndarray) -> np.ndarray:
+    """The moment sums of unit ``headings`` (id order): per species ``sum u``, then
+    ``sum (ux^2 - uy^2), sum 2 ux uy`` (2D) or ``sum u_a u_b`` for xx, yy, zz, xy, xz, yz (3D)."""
+    parts, first = [], 0
+    for count in model.species_counts:
+        parts.append(headings[first : first + count].sum(axis=0))
+        first += count
+    if model.alignment_rule == "nematic":
+        u = headings
+        if model.dim == 2:
+            parts.append(np.array([np.sum(u[:, 0] * u[:, 0] - u[:, 1] * u[:, 1]), np.sum(2.0 * u[:, 0] * u[:, 1])]))
+        else:
+            parts.append(np.array([np.sum(u[:, a] * u[:, b]) for a, b in _PAIRS]))
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+def extra_values(model, sums: np.ndarray) -> np.ndarray:
+    """The :func:`extra_names` columns from moment sums ``(..., moment_width)``."""
+    sums = np.asarray(sums, dtype=np.float64)
+    d, counts = model.dim, model.species_counts
+    out = []
+    if len(model.species) > 1:
+        for s, count in enumerate(counts):
+            v = sums[..., s * d : (s + 1) * d]
+            out.append(np.sqrt(np.sum(v * v, axis=-1)) / max(count, 1))
+    if model.alignment_rule == "nematic":
+        q = sums[..., d * len(counts):] / model.n
+        if d == 2:
+            out.append(np.hypot(q[..., 0], q[..., 1]))
+        else:
+            m = np.empty(q.shape[:-1] + (3, 3))
+            for i, (a, b) in enumerate(_PAIRS):
+                m[..., a, b] = m[..., b, a] = 1.5 * q[..., i]
+            m -= 0.5 * np.eye(3)
+            out.append(np.linalg.eigvalsh(m)[..., -1])
+    return np.stack(out, axis=-1) if out else np.zeros(sums.shape[:-1] + (0,))

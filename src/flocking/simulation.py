@@ -20,6 +20,7 @@ import numpy as np
 from . import backends
 from .files import replace_atomically
 from .model import Model, ParameterError
+from .observables import extra_names, extra_values, moment_sums
 from .state import State
 
 #: Polar order is handed to writers at least this often (particle-steps), so that a long
@@ -51,7 +52,8 @@ class Simulation:
        the run resumes between two triggers);
     2. the backend advances to the next step at which some writer is due (or a chunk of
        about two million particle-steps, or the end);
-    3. writers ``observe`` the polar order of those steps, then the due ones ``write``;
+    3. writers ``observe`` the polar order of those steps (and the observables beyond it:
+       :meth:`extra_observables`), then the due ones ``write``;
     4. a stop request (:meth:`request_stop`, e.g. from a signal handler) ends the run
        there, every writer writing that step; writers are closed at the end either way;
     5. a non-finite polar order ends the run with :class:`NonFiniteError`, after the
@@ -77,6 +79,7 @@ class Simulation:
         self.origin = state.step if origin is None else int(origin)
         self.info: dict[str, Any] = {}
         self._stop = False
+        self._extra_names = extra_names(model)
 
     @property
     def state(self) -> State:
@@ -127,8 +130,9 @@ class Simulation:
                     self.polar_order[0] = phi[-1]
                 done = np.arange(step + 1, target + 1)
                 step = target
+                extra = self.extra_observables(self.backend.moments) if self._extra_names else None
                 for w in self.writers:
-                    w.observe(done, phi)
+                    w.observe(done, phi, extra)
                     if w.due(step, self.origin, last) or self._stop:
                         w.write(self)
                 if bar is not None:
@@ -144,6 +148,15 @@ class Simulation:
                     errors.append(err)
             if errors and sys.exc_info()[0] is None:
                 raise errors[0]
+
+    def extra_observables(self, moments: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The observables beyond the polar order (:func:`flocking.observables.extra_names`:
+        per-species polar order, nematic order) from the backend's moment sums of some steps,
+        or of the current state."""
+        if moments is None:
+            moments = moment_sums(self.model, self.state.headings)[None]
+        values = extra_values(self.model, moments)
+        return {name: values[..., i] for i, name in enumerate(self._extra_names)}
 
     def _non_finite(self, step: int, phi: np.ndarray) -> None:
         """Hand writers the finite steps of ``phi`` (which follow ``step``), then stop the run."""

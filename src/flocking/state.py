@@ -65,7 +65,7 @@ class State:
 
     @classmethod
     def random(cls, model: Model) -> State:
-        """Uniform positions in the box and uniformly random headings.
+        """Uniform positions in the box (outside every obstacle) and uniformly random headings.
 
         The arrays are filled a block of particles at a time, so the random numbers'
         temporaries stay small; each number is a pure function of its keys, so the
@@ -75,11 +75,7 @@ class State:
         positions, headings = np.empty((n, d)), np.empty((n, d))
         for lo in range(0, n, _BLOCK):
             ids = np.arange(lo, min(n, lo + _BLOCK), dtype=np.uint64)
-            block = positions[lo : lo + len(ids)]
-            for a in range(d):
-                block[:, a] = rng.uniform(model.seed, 0, ids, rng.POSITION + a) * model.box[a]
-            # u * L can round up to L itself: keep the half-open interval
-            block[block >= model.box] = 0.0
+            positions[lo : lo + len(ids)] = random_positions(model, ids)
             u0 = rng.uniform(model.seed, 0, ids, rng.HEADING)
             u1 = rng.uniform(model.seed, 0, ids, rng.HEADING + 1)
             headings[lo : lo + len(ids)] = random_unit_vectors(d, u0, u1)
@@ -143,6 +139,38 @@ def frame_arrays(state: State, box) -> tuple[np.ndarray, np.ndarray]:
     return points, velocities
 
 
+def random_positions(model: Model, ids: np.ndarray) -> np.ndarray:
+    """Positions of the particles ``ids`` (uint64), uniform in the free space of the box.
+
+    Draw ``r`` uses the step key ``r`` (0 first) with the counters ``POSITION + axis``: a
+    particle inside an obstacle draws again, until it is outside (the obstacles leave at
+    least a tenth of the box free, so a few draws do)."""
+    box = np.asarray(model.box)
+    positions = np.empty((len(ids), model.dim))
+    todo = np.arange(len(ids))
+    draw = 0
+    while todo.size:
+        for a in range(model.dim):
+            positions[todo, a] = rng.uniform(model.seed, draw, ids[todo], rng.POSITION + a) * box[a]
+        # u * L can round up to L itself: keep the half-open interval
+        positions[todo] = np.where(positions[todo] >= box, 0.0, positions[todo])
+        todo = todo[inside_obstacles(model, positions[todo])]
+        draw += 1
+    return positions
+
+
+def inside_obstacles(model: Model, positions: np.ndarray) -> np.ndarray:
+    """Whether each position lies strictly inside some obstacle (minimum image on periodic axes)."""
+    inside = np.zeros(len(positions), dtype=bool)
+    box = np.asarray(model.box)
+    periodic = ~np.asarray(model.walls)
+    for ob in model.obstacles:
+        r = positions - np.asarray(ob.centre)
+        r = np.where(periodic, r - box * np.round(r / box), r)
+        inside |= np.einsum("ij,ij->i", r, r) < ob.radius * ob.radius
+    return inside
+
+
 def random_unit_vectors(dim: int, u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
     """Unit vectors uniform on the circle (from ``u0``) or the sphere (from ``u0, u1``)."""
     if dim == 2:
@@ -156,11 +184,18 @@ def random_unit_vectors(dim: int, u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
 
 def initial_speeds(model: Model) -> np.ndarray:
     """All ``v0`` (one number broadcast, read-only), or (``speeds="uniform"``) each
-    uniform in ``(0, v0]``."""
-    if model.speeds == "constant":
-        return np.broadcast_to(np.float64(model.speed), (model.n,))
+    uniform in ``(0, v0]``; with species, each species' own ``speed`` and ``speeds``."""
+    v0s, kinds, counts = model.species_values("speed"), model.species_values("speeds"), model.species_counts
+    if len(set(v0s)) == 1 and set(kinds) == {"constant"}:
+        return np.broadcast_to(np.float64(v0s[0]), (model.n,))
     speeds = np.empty(model.n)
-    for lo in range(0, model.n, _BLOCK):
-        ids = np.arange(lo, min(model.n, lo + _BLOCK), dtype=np.uint64)
-        speeds[lo : lo + len(ids)] = model.speed * (1.0 - rng.uniform(model.seed, 0, ids, rng.SPEED))
+    first = 0
+    for v0, kind, count in zip(v0s, kinds, counts):
+        if kind == "constant":
+            speeds[first : first + count] = v0
+        else:
+            for lo in range(first, first + count, _BLOCK):
+                ids = np.arange(lo, min(first + count, lo + _BLOCK), dtype=np.uint64)
+                speeds[lo : lo + len(ids)] = v0 * (1.0 - rng.uniform(model.seed, 0, ids, rng.SPEED))
+        first += count
     return speeds

@@ -2,8 +2,9 @@
 
 A writer has ``every`` (a period in steps, counted from the run's origin; ``0`` means only
 the first and the last step of a run), ``begin(sim)`` (called once when a run starts),
-``write(sim)`` (at each triggered step), ``observe(steps, phi)`` (the polar order of every
-step, in blocks), ``sync()`` (finish what is in flight; a checkpoint calls it first) and
+``write(sim)`` (at each triggered step), ``observe(steps, phi, extra)`` (the polar order of
+every step, in blocks, and ``extra``, a mapping of the other observables' names to their
+values at those steps, or ``None``), ``sync()`` (finish what is in flight; a checkpoint calls it first) and
 ``close()``. Files are flushed as they go (small GSD frames at least once a second, as
 each flush fsyncs), so an interrupted run leaves valid files that hold everything up to
 its last second, and everything up to its last checkpoint.
@@ -46,8 +47,9 @@ class Writer:
     def write(self, sim) -> None:
         """Called at each step where :meth:`due` is true (the first and last included)."""
 
-    def observe(self, steps: np.ndarray, phi: np.ndarray) -> None:
-        """Called with the polar order after each step, in blocks."""
+    def observe(self, steps: np.ndarray, phi: np.ndarray, extra: dict | None = None) -> None:
+        """Called with the polar order after each step, in blocks, and the other observables
+        of those steps (:meth:`flocking.Simulation.extra_observables`), if the model has any."""
 
     def sync(self) -> None:
         """Finish any write still in progress (and raise its error, if it failed)."""
@@ -123,6 +125,7 @@ class GSDWriter(Writer):
                 raise RuntimeError(f"GSD file is not a hoomd schema file: {self.path}")
             self.mode = "a"  # a later run of the same simulation appends to what this one wrote
             self._parameters = np.frombuffer(json.dumps(sim.parameters()).encode(), dtype=np.uint8)
+            self._static = static_chunks(sim.model)
             if self._file.nframes:
                 for name in _DEFAULTS:
                     if self._file.chunk_exists(frame=0, name=name):
@@ -208,6 +211,8 @@ class GSDWriter(Writer):
             if self._differs(name, data):
                 self._file.write_chunk(name, data.astype(np.float32) if name == "configuration/box" else data)
         if fresh:
+            for name, data in self._static.items():
+                self._file.write_chunk(name, data)
             self._file.write_chunk("log/" + PARAMETERS_KEY, self._parameters)
         self._file.end_frame()
         self._dirty = True
@@ -241,29 +246,66 @@ class GSDWriter(Writer):
             self._buffers = None
 
 
-class ObservablesWriter(Writer):
-    """A CSV table with a header and one row per step: ``step,polar_order``."""
+def static_chunks(model) -> dict[str, np.ndarray]:
+    """What frame 0 holds beyond the particles and the parameters, for a model with
+    extensions: the species as GSD particle types (``particles/types``, ``particles/typeid``:
+    OVITO and freud colour and filter by them), and the walls and obstacles as log entries
+    (``flocking/walls``: 1 per axis with walls; ``flocking/obstacles``: one row per
+    obstacle, centre in the file's centred coordinates, then radius).
 
-    columns = ("step", "polar_order")
+    >>> from flocking import Model
+    >>> chunks = static_chunks(Model(n=4, box=8.0, species=[{"n": 1}, {"n": 3, "name": "fast"}],
+    ...                              obstacles=[{"centre": [2, 4], "radius": 1}]))
+    >>> chunks["particles/typeid"].tolist(), chunks["log/flocking/obstacles"].tolist()
+    ([0, 1, 1, 1], [[-2.0, 0.0, 1.0]])
+    """
+    chunks = {}
+    if len(model.species) > 1:
+        names = [name.encode() for name in model.species_names]
+        width = max(map(len, names)) + 1
+        chunks["particles/types"] = np.array(names, dtype=np.dtype((bytes, width))).view(np.int8).reshape(
+            len(names), width)
+        chunks["particles/typeid"] = np.repeat(np.arange(len(names), dtype=np.uint32), model.species_counts)
+    if any(model.walls):
+        chunks["log/flocking/walls"] = np.array(model.walls, dtype=np.uint8)
+    if model.obstacles:
+        box = np.asarray(model.box)
+        chunks["log/flocking/obstacles"] = np.array([[*(np.asarray(o.centre) - box / 2), o.radius]
+                                                     for o in model.obstacles])
+    return chunks
+
+
+class ObservablesWriter(Writer):
+    """A CSV table with a header and one row per step: ``step,polar_order``, then, for a
+    model with several species, ``polar_order_<name>`` of each, and for nematic alignment
+    ``nematic_order``."""
 
     def __init__(self, path: str | os.PathLike, mode: str = "w"):
         self.path = os.fspath(path)
         self.mode = mode
         self._file = None
+        self.columns = ("step", "polar_order")
 
     def begin(self, sim) -> None:
         if self._file is None:
             fresh = self.mode == "w" or not os.path.exists(self.path) or os.path.getsize(self.path) == 0
             self._file = open(self.path, self.mode, encoding="utf-8")
             self.mode = "a"  # a later run of the same simulation appends
+            extra = sim.extra_observables()
+            self.columns = ("step", "polar_order", *extra)
             if fresh:
                 self._file.write(",".join(self.columns) + "\n")
-                self._file.write(f"{sim.step},{sim.polar_order[-1]!r}\n")
+                self._file.write(self._rows([sim.step], [sim.polar_order[-1]], extra))
                 self._file.flush()
 
-    def observe(self, steps: np.ndarray, phi: np.ndarray) -> None:
+    @staticmethod
+    def _rows(steps, phi, extra) -> str:
+        columns = [list(steps), list(phi)] + [np.ravel(v).tolist() for v in (extra or {}).values()]
+        return "".join(",".join(map(repr, row)) + "\n" for row in zip(*columns))
+
+    def observe(self, steps: np.ndarray, phi: np.ndarray, extra: dict | None = None) -> None:
         # one write of whole lines: a crash never leaves half a row behind a flushed one
-        self._file.write("".join(f"{s},{p!r}\n" for s, p in zip(steps.tolist(), phi.tolist())))
+        self._file.write(self._rows(steps.tolist(), phi.tolist(), extra))
         self._file.flush()
 
     def close(self) -> None:

@@ -60,7 +60,8 @@ import numpy as np  # noqa: E402
 from numba.core import cgutils, types  # noqa: E402
 from numba.extending import intrinsic  # noqa: E402
 
-from ..model import Model, ParameterError
+from ..model import Model, ParameterError  # noqa: E402
+from ..observables import moment_width  # noqa: E402
 from ..state import State  # noqa: E402
 from .kernels import minimum_image, update_2d, update_3d, wrap  # noqa: E402
 
@@ -439,11 +440,13 @@ def _generic_sums(i, c, pos, head, start, nc, box, half, r2):
 
 
 @numba.njit(cache=True)
-def _topological(i, c, pos, ids, start, nc, box, half, k, best_d2, best_id, best_slot):
+def _topological(i, c, pos, head, ids, start, nc, box, half, k, best_d2, best_id, best_slot, cone, cos_v):
     """The k nearest others of slot ``i`` into ``best_slot``; returns how many were found.
 
     Rings of cells (Chebyshev distance r in cell offsets) are searched outward until the
     k-th distance is below the distance to any unsearched cell. Ties go to the lower id.
+    With ``cone``, only others within the vision cone count (``u_i . r >= |r| cos_v``).
+    An axis with walls has ``half = inf``: no minimum image along it.
     """
     d = pos.shape[0]
     c0 = c % nc[0]
@@ -483,9 +486,13 @@ def _topological(i, c, pos, ids, start, nc, box, half, k, best_d2, best_id, best
                             if j == i:
                                 continue
                             d2 = 0.0
+                            dot = 0.0
                             for a in range(d):
                                 dx = minimum_image(pos[a, j] - pos[a, i], box[a], half[a])
                                 d2 += dx * dx
+                                dot += head[a, i] * dx
+                            if cone and not dot >= math.sqrt(d2) * cos_v:
+                                continue
                             jid = ids[j]
                             if found == k and (d2 > best_d2[k - 1] or (d2 == best_d2[k - 1] and jid > best_id[k - 1])):
                                 continue
@@ -512,6 +519,20 @@ def _topological(i, c, pos, ids, start, nc, box, half, k, best_d2, best_id, best
 
 
 @numba.njit(cache=True, inline="always")
+def _swap_delay(ring, slot, pid, ox, oy, oz, total, d):
+    """The delay ring's slot holds the sums of ``delay`` steps ago: return them
+    (others' heading sum and ``1 +`` their count) and store today's in their place."""
+    osx, osy, osz, ototal = ring[slot, pid, 0], ring[slot, pid, 1], 0.0, ring[slot, pid, d]
+    ring[slot, pid, 0] = ox
+    ring[slot, pid, 1] = oy
+    if d == 3:
+        osz = ring[slot, pid, 2]
+        ring[slot, pid, 2] = oz
+    ring[slot, pid, d] = total
+    return osx, osy, osz, ototal
+
+
+@numba.njit(cache=True, inline="always")
 def _advance_particle(i, sx, sy, sz, total, pos, head, spd, ids, new_pos, new_head, cell, ring, slot,
                       step, seed, eta, vectorial, epsilon, delay, dt, backward, nc, inv, box):
     """Slot ``i``'s new heading and position into ``new_*`` and its new cell into ``cell``,
@@ -522,24 +543,16 @@ def _advance_particle(i, sx, sy, sz, total, pos, head, spd, ids, new_pos, new_he
         # ring rows are read by particle id, in no particular order: ask for the row a few
         # particles ahead so that its cache miss overlaps work
         _prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
-        # this slot holds the sums of `delay` steps ago: read them, store today's
-        pid = ids[i]
-        osx, osy, osz, ototal = ring[slot, pid, 0], ring[slot, pid, 1], 0.0, ring[slot, pid, d]
-        ring[slot, pid, 0] = sx - head[0, i]
-        ring[slot, pid, 1] = sy - head[1, i]
-        if d == 3:
-            osz = ring[slot, pid, 2]
-            ring[slot, pid, 2] = sz - head[2, i]
-        ring[slot, pid, d] = total
+        oz = sz - head[2, i] if d == 3 else 0.0
+        osx, osy, osz, total = _swap_delay(ring, slot, ids[i], sx - head[0, i], sy - head[1, i], oz, total, d)
         sx = head[0, i] + osx
         sy = head[1, i] + osy
         if d == 3:
             sz = head[2, i] + osz
-        total = ototal
     ds = (spd[i] if spd.shape[0] == n else spd[0]) * dt
     if d == 2:
         ux, uy = head[0, i], head[1, i]
-        wx, wy = update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step, ids[i])
+        wx, wy = update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step, ids[i], 0.0, 0.0, 0.0, 0.0)
         wz = 0.0
         new_head[0, i], new_head[1, i] = wx, wy
         if backward:
@@ -550,7 +563,8 @@ def _advance_particle(i, sx, sy, sz, total, pos, head, spd, ids, new_pos, new_he
             new_pos[1, i] = wrap(pos[1, i] + ds * uy, box[1])
     else:
         ux, uy, uz = head[0, i], head[1, i], head[2, i]
-        wx, wy, wz = update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step, ids[i])
+        wx, wy, wz = update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step, ids[i],
+                               0.0, 0.0, 0.0, 0.0)
         new_head[0, i], new_head[1, i], new_head[2, i] = wx, wy, wz
         if backward:
             ux, uy, uz = wx, wy, wz
@@ -674,7 +688,8 @@ def _step_search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, r
                     if mode == 1:
                         sx, sy, sz, count = _generic_sums(i, c, pos, head, start, nc, box, half, r2)
                     else:
-                        found = _topological(i, c, pos, ids, start, nc, box, half, k, best_d2, best_id, best_slot)
+                        found = _topological(i, c, pos, head, ids, start, nc, box, half, k, best_d2, best_id,
+                                             best_slot, False, 0.0)
                         sx = head[0, i]
                         sy = head[1, i]
                         if d == 3:
@@ -756,12 +771,21 @@ class CPUBackend:
         else:
             self._spd, self._tmp_spd = np.empty(n), np.empty(n)
         self._step_count = state.step
-        if model.neighbours == "topological":
+        self._extensions = ()  # the extra arguments of the kernel for a model with extensions
+        if model.extended:
+            from . import cpu_extensions
+
+            mode = 3
+            self._kernel = cpu_extensions.step
+            self._extensions = cpu_extensions.parameters(model, self._nc)
+        elif model.neighbours == "topological":
             mode = 2
         else:
             mode = 0 if np.all(self._nc >= 3) else 1
-        self._kernel = _step_lines if mode == 0 else _step_search
-        self._partial = np.zeros((_work_units(self._nc, n, mode), 3))
+        if mode < 3:
+            self._kernel = _step_lines if mode == 0 else _step_search
+        self._partial = np.zeros((_work_units(self._nc, n, min(mode, 1)),
+                                  moment_width(model) if mode == 3 else 3))
         self._params = np.array([
             model.radius**2, model.k if model.neighbours == "topological" else 0, model.noise,
             model.noise_type == "vectorial", model.alignment, model.delay, model.dt,
@@ -831,7 +855,8 @@ class CPUBackend:
         params[5] = 1.0  # record the sums in a one-slot ring; the step itself is thrown away
         self._kernel(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
                      *self._scratch(), self._cell.copy(), ring, 0,
-                     self._step_count, self._seed, params, self._partial.copy(), numba.get_num_threads())
+                     self._step_count, self._seed, params, self._partial.copy(), numba.get_num_threads(),
+                     *self._extensions)
         return ring[0]
 
     @property
@@ -865,20 +890,27 @@ class CPUBackend:
         return points, velocities
 
     def advance(self, steps: int) -> np.ndarray:
-        """Take ``steps`` steps; return the polar order after each."""
+        """Take ``steps`` steps; return the polar order after each (and keep the moment
+        sums of each step in :attr:`moments`)."""
         d, n = self._pos.shape
         phi = np.empty(steps)
-        delay = self.model.delay
+        self.moments = moments = np.empty((steps, moment_width(self.model)))
+        delay, species = self.model.delay, len(self.model.species_counts)
         new_pos, new_head = self._scratch()
         for t in range(steps):
             slot = self._step_count % delay if delay else 0
             self._kernel(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
                          new_pos, new_head, self._cell, self._ring, slot, self._step_count,
-                         self._seed, self._params, self._partial, numba.get_num_threads())
+                         self._seed, self._params, self._partial, numba.get_num_threads(), *self._extensions)
             self._sort_into(new_pos, new_head, self._spd, self._ids, self._tmp_spd, self._tmp_ids)
             self._spd, self._tmp_spd = self._tmp_spd, self._spd
             self._ids, self._tmp_ids = self._tmp_ids, self._ids
             self._step_count += 1
-            total = self._partial.sum(axis=0) if n else np.zeros(3)
+            if self._extensions:
+                moments[t] = self._partial.sum(axis=0)
+                total = moments[t, : d * species].reshape(species, d).sum(axis=0)
+            else:
+                total = self._partial.sum(axis=0) if n else np.zeros(3)
+                moments[t] = total[:d]
             phi[t] = math.sqrt(float(total @ total)) / max(n, 1)
         return phi

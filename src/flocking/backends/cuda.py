@@ -74,6 +74,9 @@ class CUDABackend:
             raise ParameterError(f"precision: must be 'float64' or 'float32' (got {precision!r})")
         if model.n >= 2**31:
             raise ParameterError(f"n: the cuda backend takes fewer than 2**31 particles (got {model.n})")
+        if model.extended:
+            raise ParameterError("backend: 'cuda' does not run the extensions yet (walls, obstacles, species, "
+                                 "coupling, vision, nematic alignment, chirality, fields): use 'cpu'")
         cuda = _cuda()
         from .cuda_kernels import build
 

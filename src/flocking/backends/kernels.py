@@ -33,9 +33,13 @@ def wrap(x, length):
 
 
 @_jit
-def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid):
-    """From ``u_i(t)``, the sum ``S_i`` and its number of terms to ``u_i(t+1)`` (2D)."""
+def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, turn):
+    """From ``u_i(t)``, the sum ``S_i`` and its number of terms to ``u_i(t+1)`` (2D):
+    field ``h g``, noise ``eta``, alignment ``epsilon``, chirality ``turn = omega dt``."""
     z0 = rng.uniform_jit(seed, step, pid, rng.NOISE)
+    if h != 0.0:
+        sx = sx + h * count * gx
+        sy = sy + h * count * gy
     if vectorial:
         angle = 2.0 * math.pi * z0
         sx = sx + eta * count * math.cos(angle)
@@ -51,6 +55,9 @@ def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid):
         a = epsilon * math.atan2(ux * my - uy * mx, ux * mx + uy * my)
         c, s = math.cos(a), math.sin(a)
         wx, wy = ux * c - uy * s, ux * s + uy * c
+    if turn != 0.0:
+        c, s = math.cos(turn), math.sin(turn)
+        wx, wy = wx * c - wy * s, wx * s + wy * c
     if not vectorial:
         a = eta * (z0 - 0.5)
         c, s = math.cos(a), math.sin(a)
@@ -60,10 +67,15 @@ def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid):
 
 
 @_jit
-def update_3d(ux, uy, uz, sx, sy, sz, count, epsilon, eta, vectorial, seed, step, pid):
-    """From ``u_i(t)``, the sum ``S_i`` and its number of terms to ``u_i(t+1)`` (3D)."""
+def update_3d(ux, uy, uz, sx, sy, sz, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, gz):
+    """From ``u_i(t)``, the sum ``S_i`` and its number of terms to ``u_i(t+1)`` (3D),
+    with the field ``h g``."""
     z0 = rng.uniform_jit(seed, step, pid, rng.NOISE)
     z1 = rng.uniform_jit(seed, step, pid, rng.NOISE + 1)
+    if h != 0.0:
+        sx = sx + h * count * gx
+        sy = sy + h * count * gy
+        sz = sz + h * count * gz
     if vectorial:
         z = 2.0 * z0 - 1.0
         rho = math.sqrt(max(0.0, 1.0 - z * z))

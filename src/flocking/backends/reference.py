@@ -1,7 +1,8 @@
 """The reference backend: plain NumPy, O(N^2), written to be obviously right.
 
-It follows ``shared/MODEL.md`` line by line and is the oracle the fast backends are
-tested against. Use it for a few thousand particles at most.
+It follows the model description (docs/model.md) line by line, extensions included, and
+is the oracle the fast backends are tested against. Use it for a few thousand particles
+at most.
 
 >>> from flocking import Model, State
 >>> from flocking.backends.reference import ReferenceBackend
@@ -20,34 +21,74 @@ import numpy as np
 
 from .. import rng
 from ..model import Model
+from ..observables import moment_sums, moment_width
 from ..state import State, frame_arrays, random_unit_vectors
 
 
-def minimum_image(displacement: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """Fold displacements (coordinates in ``(-L, L)``) into ``[-L/2, L/2]``, axis by axis."""
+def minimum_image(displacement: np.ndarray, box: np.ndarray, walls=None) -> np.ndarray:
+    """Fold displacements (coordinates in ``(-L, L)``) into ``[-L/2, L/2]``, axis by axis;
+    axes with walls (``walls[a]`` true) are left as they are."""
     half = box / 2
+    if walls is not None:
+        half = np.where(walls, np.inf, half)
     return np.where(displacement > half, displacement - box,
                     np.where(displacement < -half, displacement + box, displacement))
 
 
-def neighbour_matrix(model: Model, positions: np.ndarray) -> np.ndarray:
-    """``A[i, j]`` is True when ``j`` is in the neighbourhood of ``i`` (``i`` included)."""
+def neighbour_matrix(model: Model, positions: np.ndarray, headings: np.ndarray | None = None) -> np.ndarray:
+    """``A[i, j]`` is True when ``j`` is in the neighbourhood of ``i`` (``i`` included).
+
+    With a vision cone (``model.vision < pi``), ``j`` must lie within ``vision`` of the
+    heading ``headings[i]``: ``u_i . (r_j - r_i) >= |r_j - r_i| cos(vision)``.
+    """
     box = np.asarray(model.box)
-    disp = minimum_image(positions[None, :, :] - positions[:, None, :], box)
+    disp = minimum_image(positions[None, :, :] - positions[:, None, :], box, np.asarray(model.walls))
     d2 = np.zeros(disp.shape[:2])
     for a in range(model.dim):
         d2 += disp[:, :, a] * disp[:, :, a]
     n = len(positions)
+    seen = np.ones((n, n), dtype=bool)
+    if model.vision < np.pi:
+        dot = np.zeros(disp.shape[:2])
+        for a in range(model.dim):
+            dot += headings[:, None, a] * disp[:, :, a]
+        seen = dot >= np.sqrt(d2) * np.cos(model.vision)
     if model.neighbours == "metric":
-        return d2 < model.radius * model.radius
-    others = d2.copy()
+        a = (d2 < model.radius * model.radius) & seen
+        np.fill_diagonal(a, True)
+        return a
+    others = np.where(seen, d2, np.inf)
     np.fill_diagonal(others, np.inf)
     # a stable sort keeps equal distances in index order: ties go to the lower index
     nearest = np.argsort(others, axis=1, kind="stable")[:, : min(model.k, n - 1)]
     a = np.zeros((n, n), dtype=bool)
-    a[np.arange(n)[:, None], nearest] = True
+    rows = np.arange(n)[:, None]
+    a[rows, nearest] = np.isfinite(others[rows, nearest])  # fewer than k in sight: only those
     np.fill_diagonal(a, True)
     return a
+
+
+def species_of(model: Model) -> np.ndarray:
+    """The species index of every particle (blocks of ids)."""
+    return np.repeat(np.arange(len(model.species_counts)), model.species_counts)
+
+
+def per_particle(model: Model, name: str) -> np.ndarray:
+    """A per-species parameter, one value per particle."""
+    return np.asarray(model.species_values(name), dtype=np.float64)[species_of(model)]
+
+
+def weights(model: Model, a: np.ndarray, headings: np.ndarray) -> np.ndarray:
+    """``W[i, j] = J[s_i][s_j] c_ij`` for the neighbours ``j != i`` in ``a``, 0 elsewhere:
+    ``c_ij`` is 1 (polar) or the sign of ``u_i . u_j`` with sign(0) = 1 (nematic)."""
+    w = a.astype(np.float64)
+    np.fill_diagonal(w, 0.0)
+    if model.coupling is not None:
+        s = species_of(model)
+        w *= np.asarray(model.coupling)[s[:, None], s[None, :]]
+    if model.alignment_rule == "nematic":
+        w *= np.where(headings @ headings.T >= 0.0, 1.0, -1.0)
+    return w
 
 
 def align(u: np.ndarray, m: np.ndarray, epsilon: float) -> np.ndarray:
@@ -102,20 +143,68 @@ def wrap(positions: np.ndarray, box: np.ndarray) -> np.ndarray:
 
 
 def heading_update(model: Model, state: State, sums: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Steps 3 to 6 of MODEL.md: from the sums of headings ``S_i`` to ``u_i(t+1)``."""
+    """Steps 3 to 6 of the step, with the field and chirality: from the sums of headings
+    ``S_i`` and their numbers of terms ``n_i`` to ``u_i(t+1)``."""
     ids = np.arange(state.n, dtype=np.uint64)
     z0 = rng.uniform(model.seed, state.step, ids, rng.NOISE)
     z1 = rng.uniform(model.seed, state.step, ids, rng.NOISE + 1)
     u = state.headings
     s = sums.copy()
+    eta = model.noise if len(set(model.species_values("noise"))) == 1 else per_particle(model, "noise")
+    h = per_particle(model, "field_strength")
+    if h.any():
+        s += (h * counts)[:, None] * np.asarray(model.field_direction)[None, :]
     if model.noise_type == "vectorial":
-        s += (model.noise * counts)[:, None] * random_unit_vectors(model.dim, z0, z1)
+        s += (eta * counts)[:, None] * random_unit_vectors(model.dim, z0, z1)
     norm = np.linalg.norm(s, axis=1)
     m = np.where((norm > 0)[:, None], s / np.where(norm > 0, norm, 1.0)[:, None], u)
-    w = align(u, m, model.alignment)
+    epsilon = model.species_values("alignment")
+    if len(set(epsilon)) == 1:
+        w = align(u, m, epsilon[0])
+    else:
+        w = np.empty_like(u)
+        eps = per_particle(model, "alignment")
+        for e in set(epsilon):
+            pick = eps == e
+            w[pick] = align(u[pick], m[pick], e)
+    omega = per_particle(model, "chirality") * model.dt
+    if omega.any():
+        w = rotate_2d(w, omega)
     if model.noise_type == "angular":
-        w = angular_noise(w, model.noise, z0, z1)
+        w = angular_noise(w, eta, z0, z1)
     return w / np.linalg.norm(w, axis=1)[:, None]
+
+
+def bounce(model: Model, positions: np.ndarray, headings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """After a move: fold positions across walls, turning headings back into the box, then
+    push particles out of obstacles (each in the listed order) to their mirror points,
+    turning the headings that point inward; periodic axes are wrapped."""
+    box = np.asarray(model.box)
+    walls = np.asarray(model.walls)
+    x, u = positions.copy(), headings.copy()
+    for a in np.flatnonzero(walls):
+        low, high = x[:, a] < 0.0, x[:, a] > box[a]
+        x[low, a] = -x[low, a]
+        u[low, a] = np.abs(u[low, a])
+        x[high, a] = 2.0 * box[a] - x[high, a]
+        u[high, a] = -np.abs(u[high, a])
+    for ob in model.obstacles:
+        c = np.asarray(ob.centre)
+        r = minimum_image(x - c, box, walls)
+        dist = np.sqrt(np.sum(r * r, axis=1))
+        hit = dist < ob.radius
+        if not hit.any():
+            continue
+        normal = np.where((dist[hit] > 0)[:, None], r[hit] / np.where(dist[hit] > 0, dist[hit], 1.0)[:, None],
+                          -u[hit])
+        x[hit] = c + (2.0 * ob.radius - dist[hit])[:, None] * normal
+        x[hit] = np.where(walls, x[hit], wrap(x[hit], box))
+        dot = np.sum(u[hit] * normal, axis=1)
+        inward = dot < 0.0
+        uh = u[hit]
+        uh[inward] = uh[inward] - 2.0 * dot[inward, None] * normal[inward]
+        u[hit] = uh
+    return x, u
 
 
 class ReferenceBackend:
@@ -157,31 +246,43 @@ class ReferenceBackend:
         return self._state.step
 
     def advance(self, steps: int) -> np.ndarray:
-        """Take ``steps`` steps; return the polar order after each."""
+        """Take ``steps`` steps; return the polar order after each (and keep the moment
+        sums of each step in :attr:`moments`)."""
         phi = np.empty(steps)
+        self.moments = np.empty((steps, moment_width(self.model)))
         for t in range(steps):
             self._step()
             phi[t] = self._state.polar_order()
+            self.moments[t] = moment_sums(self.model, self._state.headings)
         return phi
 
     def _step(self) -> None:
         model, now = self.model, self._state
         if model.delay == 0:
             seen = now
-            a = neighbour_matrix(model, seen.positions)
+            a = neighbour_matrix(model, seen.positions, seen.headings)
         else:
             seen = self._history[0]  # the state tau steps ago
-            a = neighbour_matrix(model, seen.positions)
+            a = neighbour_matrix(model, seen.positions, seen.headings)
             np.fill_diagonal(a, False)
-        sums = a.astype(np.float64) @ seen.headings
         counts = a.sum(axis=1).astype(np.float64)
+        if model.coupling is None and model.alignment_rule == "polar":
+            sums = a.astype(np.float64) @ seen.headings
+            if model.delay:
+                sums += now.headings
+        else:
+            sums = now.headings + weights(model, a, seen.headings) @ seen.headings
         if model.delay:
-            sums += now.headings
             counts += 1.0
         new = heading_update(model, now, sums, counts)
         moving = new if model.update == "backward" else now.headings
         box = np.asarray(model.box)
-        positions = wrap(now.positions + (now.speeds * model.dt)[:, None] * moving, box)
+        positions = now.positions + (now.speeds * model.dt)[:, None] * moving
+        if any(model.walls) or model.obstacles:
+            positions = np.where(model.walls, positions, wrap(positions, box))
+            positions, new = bounce(model, positions, new)
+        else:
+            positions = wrap(positions, box)
         if model.delay:
             self._history.append(now.copy())
         self._state = State(positions, new, now.speeds, now.step + 1)

@@ -47,6 +47,8 @@ def option_name(message: str, options: set[str] = frozenset()) -> str:
     from ..config import RUN_KEYS
 
     key, sep, rest = message.partition(": ")
+    if key in ("obstacles", "species", "coupling"):  # lists and tables: a config file's keys, no option
+        return message
     if sep and (key in options or key in RUN_KEYS or key in ("config", "out", "resume")):
         return f"--{key.replace('_', '-')}: {rest}"
     return message

@@ -33,6 +33,17 @@ MODEL_OPTIONS = [
     ("--dt", click.FLOAT, "Time step (> 0). [default: 1]"),
     ("--update", click.Choice(CHOICES["update"]), "Move along the new (backward) or old (forward) heading."),
     ("--seed", click.INT, "The one integer that fixes every random number. [default: 0]"),
+    # the extensions (docs/model.md); obstacles, species and coupling come from --config
+    ("--boundary", str, "periodic or wall, for every axis or one per axis such as periodic,wall. "
+                        "[default: periodic]"),
+    ("--vision", click.FLOAT, "Half-angle of the cone in front inside which neighbours are seen, in (0, pi]. "
+                              "[default: pi, all around]"),
+    ("--alignment-rule", click.Choice(CHOICES["alignment_rule"]),
+     "polar, or nematic: anti-parallel neighbours count reversed. [default: polar]"),
+    ("--chirality", click.FLOAT, "Turn omega (radians per unit time, counter-clockwise) every step, 2D only. "
+                                 "[default: 0]"),
+    ("--field", str, "Direction g of an external field such as 1,0 (any length). [default: none]"),
+    ("--field-strength", click.FLOAT, "Strength h >= 0 of the field: S += h n g. [default: 0]"),
 ]
 
 

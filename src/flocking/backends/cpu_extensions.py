@@ -1,0 +1,286 @@
+"""The CPU backend's step for a model with extensions: walls, obstacles, species and their
+coupling, vision cones, nematic alignment, chirality and fields.
+
+The plain model keeps the tuned kernels of :mod:`flocking.backends.cpu`; a model with any
+extension (:attr:`flocking.Model.extended`) takes this step instead, over the same arrays
+kept in cell order and the same cells. Work comes in fixed blocks of slots that threads
+take from an atomic counter (as the topological kernel does), so no result depends on the
+number of threads. Each particle sums its neighbours, itself left out, from the ``3^d``
+cells around its own (metric) or from rings of cells (the ``k`` nearest), each neighbour
+weighted by the coupling of the two species and, for nematic alignment, by the sign of
+``u_i . u_j``; a vision cone drops the neighbours behind. Then the per-particle update of
+:mod:`flocking.backends.kernels` (with the species' noise, alignment, chirality and field
+strength), the move, the walls and the obstacles, in the order of the model description.
+
+Along an axis with walls there is no minimum image (``half = inf``) and no cell wraps
+around. Each block also sums the moments of its new headings (:mod:`flocking.observables`:
+per species ``sum u``, and the nematic products), then blocks are added in order.
+
+The parameters travel as small arrays: ``half`` (per axis), ``walls`` (0/1 per axis),
+``obstacles`` ``(M, d + 1)`` (centre, radius), ``bounds`` (the first id of each species,
+then ``N``), ``species`` ``(S, 4)`` (noise, alignment, ``chirality * dt``, field
+strength), ``coupling`` ``(S, S)``, ``g`` (3, the field's direction) and ``q`` (coupling
+on, nematic, vision cone on, cosine of the vision half-angle).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .cpu import _BLOCK, _axis_cells, _cell_of, _fetch_add, _swap_delay, _topological, _work_units
+from .kernels import minimum_image, update_2d, update_3d, wrap
+
+_COUPLING, _NEMATIC, _CONE, _COS = 0, 1, 2, 3
+
+
+def parameters(model, nc: np.ndarray) -> tuple:
+    """The extension arrays of :func:`step` for ``model``, in its argument order."""
+    d = model.dim
+    box = np.asarray(model.box, dtype=np.float64)
+    walls = np.asarray(model.walls, dtype=np.int64)
+    half = np.where(walls != 0, np.inf, box / 2.0)
+    obstacles = np.array([[*o.centre, o.radius] for o in model.obstacles], dtype=np.float64).reshape(-1, d + 1)
+    bounds = np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64)
+    species = np.array([model.species_values(name) for name in ("noise", "alignment", "chirality", "field_strength")],
+                       dtype=np.float64).T.copy()
+    species[:, 2] *= model.dt
+    count = len(model.species_counts)
+    coupling = np.ones((count, count)) if model.coupling is None else np.array(model.coupling, dtype=np.float64)
+    g = np.zeros(3)
+    if model.field is not None:
+        g[:d] = model.field_direction
+    q = np.array([model.coupling is not None, model.alignment_rule == "nematic", model.vision < math.pi,
+                  math.cos(model.vision)], dtype=np.float64)
+    return half, walls, obstacles, bounds, species, coupling, g, q
+
+
+@numba.njit(cache=True, inline="always")
+def _species_of(pid, bounds):
+    s = 0
+    while pid >= bounds[s + 1]:
+        s += 1
+    return s
+
+
+@numba.njit(cache=True, inline="always")
+def _weight(i, j, head, ids, bounds, coupling, q):
+    """``J[s_i][s_j] c_ij``: the weight of neighbour ``j`` in the sum of ``i``."""
+    w = 1.0
+    if q[_COUPLING] != 0.0:
+        w = coupling[_species_of(ids[i], bounds), _species_of(ids[j], bounds)]
+    if q[_NEMATIC] != 0.0:
+        dot = 0.0
+        for a in range(head.shape[0]):
+            dot += head[a, i] * head[a, j]
+        if dot < 0.0:
+            w = -w
+    return w
+
+
+@numba.njit(cache=True)
+def _metric_others(i, c, pos, head, ids, start, nc, box, half, walls, r2, bounds, coupling, q):
+    """The weighted heading sum of slot ``i``'s metric neighbours (itself left out) and
+    their number, from the cells around its own (each once; none across a wall)."""
+    d = pos.shape[0]
+    cone, cos_v = q[_CONE] != 0.0, q[_COS]
+    o0, n0 = _axis_cells(c % nc[0], nc[0])
+    o1, n1 = _axis_cells((c // nc[0]) % nc[1], nc[1])
+    o2, n2 = 0, 1
+    if d == 3:
+        o2, n2 = _axis_cells(c // (nc[0] * nc[1]), nc[2])
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    count = 0
+    for k2 in range(n2):
+        g2 = o2 + k2
+        if d == 3:
+            if walls[2] != 0 and (g2 < 0 or g2 >= nc[2]):
+                continue
+            g2 %= nc[2]
+        for k1 in range(n1):
+            g1 = o1 + k1
+            if walls[1] != 0 and (g1 < 0 or g1 >= nc[1]):
+                continue
+            g1 %= nc[1]
+            for k0 in range(n0):
+                g0 = o0 + k0
+                if walls[0] != 0 and (g0 < 0 or g0 >= nc[0]):
+                    continue
+                g0 %= nc[0]
+                cell = (g2 * nc[1] + g1) * nc[0] + g0
+                for j in range(start[cell], start[cell + 1]):
+                    if j == i:
+                        continue
+                    d2 = 0.0
+                    dot = 0.0
+                    for a in range(d):
+                        dx = minimum_image(pos[a, j] - pos[a, i], box[a], half[a])
+                        d2 += dx * dx
+                        dot += head[a, i] * dx
+                    if d2 < r2 and (not cone or dot >= math.sqrt(d2) * cos_v):
+                        w = _weight(i, j, head, ids, bounds, coupling, q)
+                        sx += w * head[0, j]
+                        sy += w * head[1, j]
+                        if d == 3:
+                            sz += w * head[2, j]
+                        count += 1
+    return sx, sy, sz, count
+
+
+@numba.njit(cache=True, inline="always")
+def _bounce(i, x, u, box, half, walls, obstacles):
+    """After a move: wrap periodic axes, fold across walls (the heading's component turned
+    into the box), then push out of each obstacle in order to its mirror point (the
+    heading reflected if it points inward). ``x`` and ``u`` are updated in place."""
+    d = x.shape[0]
+    for a in range(d):
+        if walls[a] != 0:
+            if x[a, i] < 0.0:
+                x[a, i] = -x[a, i]
+                u[a, i] = abs(u[a, i])
+            elif x[a, i] > box[a]:
+                x[a, i] = 2.0 * box[a] - x[a, i]
+                u[a, i] = -abs(u[a, i])
+        else:
+            x[a, i] = wrap(x[a, i], box[a])
+    for o in range(obstacles.shape[0]):
+        r0 = minimum_image(x[0, i] - obstacles[o, 0], box[0], half[0])
+        r1 = minimum_image(x[1, i] - obstacles[o, 1], box[1], half[1])
+        r2 = minimum_image(x[2, i] - obstacles[o, 2], box[2], half[2]) if d == 3 else 0.0
+        d2 = r0 * r0 + r1 * r1
+        if d == 3:
+            d2 += r2 * r2
+        dist = math.sqrt(d2)
+        radius = obstacles[o, d]
+        if dist < radius:
+            if dist > 0.0:
+                n0, n1, n2 = r0 / dist, r1 / dist, r2 / dist
+            else:
+                n0, n1, n2 = -u[0, i], -u[1, i], -u[2, i] if d == 3 else 0.0
+            push = 2.0 * radius - dist
+            x[0, i] = obstacles[o, 0] + push * n0
+            x[1, i] = obstacles[o, 1] + push * n1
+            if d == 3:
+                x[2, i] = obstacles[o, 2] + push * n2
+            for a in range(d):
+                if walls[a] == 0:
+                    x[a, i] = wrap(x[a, i], box[a])
+            dot = u[0, i] * n0 + u[1, i] * n1
+            if d == 3:
+                dot += u[2, i] * n2
+            if dot < 0.0:
+                u[0, i] = u[0, i] - 2.0 * dot * n0
+                u[1, i] = u[1, i] - 2.0 * dot * n1
+                if d == 3:
+                    u[2, i] = u[2, i] - 2.0 * dot * n2
+
+
+@numba.njit(cache=True, inline="always")
+def _advance(i, ox, oy, oz, total, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
+             vectorial, delay, dt, backward, nc, inv, box, half, walls, obstacles, bounds, species, g):
+    """Slot ``i``'s new heading and position into ``new_*`` and its new cell into
+    ``cell``, from the weighted sum ``o`` of its neighbours' headings (itself left out)
+    and ``total``, their number plus one."""
+    d, n = pos.shape
+    pid = ids[i]
+    if delay > 0:
+        ox, oy, oz, total = _swap_delay(ring, slot, pid, ox, oy, oz, total, d)
+    s = _species_of(pid, bounds)
+    eta, epsilon, turn, h = species[s, 0], species[s, 1], species[s, 2], species[s, 3]
+    ds = (spd[i] if spd.shape[0] == n else spd[0]) * dt
+    if d == 2:
+        ux, uy = head[0, i], head[1, i]
+        wx, wy = update_2d(ux, uy, ux + ox, uy + oy, total, epsilon, eta, vectorial, seed, step, pid,
+                           h, g[0], g[1], turn)
+        new_head[0, i], new_head[1, i] = wx, wy
+        if backward:
+            ux, uy = wx, wy
+        new_pos[0, i] = pos[0, i] + ds * ux
+        new_pos[1, i] = pos[1, i] + ds * uy
+    else:
+        ux, uy, uz = head[0, i], head[1, i], head[2, i]
+        wx, wy, wz = update_3d(ux, uy, uz, ux + ox, uy + oy, uz + oz, total, epsilon, eta, vectorial, seed, step,
+                               pid, h, g[0], g[1], g[2])
+        new_head[0, i], new_head[1, i], new_head[2, i] = wx, wy, wz
+        if backward:
+            ux, uy, uz = wx, wy, wz
+        new_pos[0, i] = pos[0, i] + ds * ux
+        new_pos[1, i] = pos[1, i] + ds * uy
+        new_pos[2, i] = pos[2, i] + ds * uz
+    _bounce(i, new_pos, new_head, box, half, walls, obstacles)
+    cell[i] = _cell_of(new_pos, i, nc, inv)
+
+
+@numba.njit(cache=True, parallel=True)
+def step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, p, partial, threads,
+         half, walls, obstacles, bounds, species, coupling, g, q):
+    """One step with extensions, from the sorted arrays into ``new_*`` (same slots);
+    ``partial[b]`` gets the moment sums of block ``b``'s new headings. The leading
+    arguments are those of :func:`flocking.backends.cpu._step_search`."""
+    d, n = pos.shape
+    r2, k, vectorial = p[0], int(p[1]), p[3] != 0.0
+    delay, dt, backward = int(p[5]), p[6], p[7] != 0.0
+    cone, cos_v, nematic = q[_CONE] != 0.0, q[_COS], q[_NEMATIC] != 0.0
+    inv = nc / box
+    ncells = start.shape[0] - 1
+    nblocks = _work_units(nc, n, 1)
+    nt = max(1, min(threads, nblocks))
+    counter = np.zeros(1, dtype=np.int64)
+    width = partial.shape[1]
+    for t in numba.prange(nt):
+        best_d2 = np.empty(max(k, 1))
+        best_id = np.empty(max(k, 1), dtype=np.int64)
+        best_slot = np.empty(max(k, 1), dtype=np.int64)
+        acc = np.zeros(width)
+        while True:
+            b = _fetch_add(counter)
+            if b >= nblocks:
+                break
+            s0 = b * _BLOCK
+            s1 = min(n, s0 + _BLOCK)
+            c = np.searchsorted(start, s0, side="right") - 1
+            acc[:] = 0.0
+            while c < ncells and start[c] < s1:
+                for i in range(max(start[c], s0), min(start[c + 1], s1)):
+                    if k == 0:
+                        ox, oy, oz, count = _metric_others(i, c, pos, head, ids, start, nc, box, half, walls, r2,
+                                                           bounds, coupling, q)
+                    else:
+                        count = _topological(i, c, pos, head, ids, start, nc, box, half, k, best_d2, best_id,
+                                             best_slot, cone, cos_v)
+                        ox = 0.0
+                        oy = 0.0
+                        oz = 0.0
+                        for m in range(count):
+                            j = best_slot[m]
+                            w = _weight(i, j, head, ids, bounds, coupling, q)
+                            ox += w * head[0, j]
+                            oy += w * head[1, j]
+                            if d == 3:
+                                oz += w * head[2, j]
+                    _advance(i, ox, oy, oz, float(count + 1), pos, head, spd, ids, new_pos, new_head, cell, ring,
+                             slot, step, seed, vectorial, delay, dt, backward, nc, inv, box, half, walls, obstacles,
+                             bounds, species, g)
+                    o = _species_of(ids[i], bounds) * d
+                    for a in range(d):
+                        acc[o + a] += new_head[a, i]
+                    if nematic:
+                        o = (bounds.shape[0] - 1) * d
+                        wx, wy = new_head[0, i], new_head[1, i]
+                        if d == 2:
+                            acc[o] += wx * wx - wy * wy
+                            acc[o + 1] += 2.0 * wx * wy
+                        else:
+                            wz = new_head[2, i]
+                            acc[o] += wx * wx
+                            acc[o + 1] += wy * wy
+                            acc[o + 2] += wz * wz
+                            acc[o + 3] += wx * wy
+                            acc[o + 4] += wx * wz
+                            acc[o + 5] += wy * wz
+                c += 1
+            partial[b, :] = acc
