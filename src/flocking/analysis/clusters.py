@@ -106,7 +106,7 @@ class Clusters(Analysis):
                    label=rf"$\langle s\rangle_n = {self.number_average_size:.4g}$")
         ax.axvline(self.weight_average_size, color=colours[2], ls=":", lw=1.2,
                    label=rf"$\langle s\rangle_w = {self.weight_average_size:.4g}$")
-        ax.plot([], [], " ", label=f"largest: {self.largest_fraction_mean:.3f} $N$")
+        ax.plot([], [], " ", color=colours[-1], label=f"largest: {self.largest_fraction_mean:.3f} $N$")
         style.label_axes(ax, "cluster_size", r"clusters per frame $n_s$")
         log_ticks(ax)
         style.legend(ax, theme, loc="best")
