@@ -134,6 +134,7 @@ def test_clusters_summary_says_which_fraction(run_dir, tmp_path):
     line = (f"clusters: largest {data['largest_fraction_mean']:.3f} of N (mean over {data['num_frames']} frames; "
             f"last frame {data['largest_fraction']:.3f}), weight-average size {data['weight_average_size']:.4g}, "
             f"number-average size {data['number_average_size']:.4g}")
+    assert data["weight_average_size"] < 1e4  # printed to 4 digits
     assert line in res.output
 
 

@@ -95,6 +95,15 @@ def theme_of(ax) -> str:
     return "dark" if 0.2126 * r + 0.7152 * g + 0.0722 * b < 0.5 else "light"
 
 
+def legend(ax, theme: str):
+    """The house legend on a backing of the axes' own colour, so that curves under it
+    never cross its text."""
+    from ..viz import style
+
+    return style.legend(ax, theme, loc="best", frameon=True, facecolor=ax.get_facecolor(), edgecolor="none",
+                        framealpha=0.8)
+
+
 def log_ticks(ax) -> None:
     """Tick labels of the log axes of ``ax`` as plain numbers (``20``, ``0.5``) between
     0.001 and 10^4, powers of ten beyond; minor ticks labelled only where matplotlib
@@ -173,15 +182,15 @@ def fit_line(x, y, sigma=None):
 
 def format_value(value, error=float("nan"), pm: str = r" \pm ") -> str:
     """``value pm error`` with the value rounded to the error's second significant digit
-    (the value alone, to 4 digits, without a finite positive error); mathtext's ``\\pm``
-    by default, for text ``pm=" ± "``.
+    (the value alone, to 4 digits or as a whole number from 10^4 on, without a finite
+    positive error); mathtext's ``\\pm`` by default, for text ``pm=" ± "``.
 
-    >>> format_value(2.64417, 0.01234), format_value(2.64417), format_value(0.5, 0.0)
-    ('2.644 \\\\pm 0.012', '2.644', '0.5')
+    >>> format_value(2.64417, 0.01234), format_value(2.64417), format_value(0.5, 0.0), format_value(17160.4)
+    ('2.644 \\\\pm 0.012', '2.644', '0.5', '17160')
     """
     if not math.isfinite(value):
         return "n/a"
     if not math.isfinite(error) or error <= 0:
-        return f"{value:.4g}"
+        return f"{value:.0f}" if 1e4 <= abs(value) < 1e9 else f"{value:.4g}"
     decimals = max(0, 1 - math.floor(math.log10(error)))
     return f"{value:.{decimals}f}{pm}{error:.{decimals}f}"

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..model import ParameterError
 from . import _input
-from ._base import Analysis, fit_line, format_value, log_ticks, result
+from ._base import Analysis, fit_line, format_value, legend, log_ticks, result
 
 
 def image_counts(image: np.ndarray):
@@ -176,5 +176,5 @@ class BoxCounting(Analysis):
                   label=f"$D = {format_value(self.dimension, self.dimension_error)}$")
         style.label_axes(ax, "box_size", "boxes")
         log_ticks(ax)
-        style.legend(ax, theme, loc="best")
+        legend(ax, theme)
         return ax

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _cells, _input
-from ._base import Analysis, log_ticks, positive, result
+from ._base import Analysis, format_value, legend, log_ticks, positive, result
 
 
 def labels(positions, box, radius: float) -> np.ndarray:
@@ -103,11 +103,11 @@ class Clusters(Analysis):
         ax.loglog(self.size_values, self.size_counts_per_frame, "o", ms=3.5, color=colours[0],
                   label=f"mean of {self.num_frames} frame{'s' * (self.num_frames > 1)}")
         ax.axvline(self.number_average_size, color=colours[1], ls="--", lw=1,
-                   label=rf"$\langle s\rangle_n = {self.number_average_size:.4g}$")
+                   label=rf"$\langle s\rangle_n = {format_value(self.number_average_size)}$")
         ax.axvline(self.weight_average_size, color=colours[2], ls=":", lw=1.2,
-                   label=rf"$\langle s\rangle_w = {self.weight_average_size:.4g}$")
+                   label=rf"$\langle s\rangle_w = {format_value(self.weight_average_size)}$")
         ax.plot([], [], " ", color=colours[-1], label=f"largest: {self.largest_fraction_mean:.3f} $N$")
         style.label_axes(ax, "cluster_size", r"clusters per frame $n_s$")
         log_ticks(ax)
-        style.legend(ax, theme, loc="best")
+        legend(ax, theme)
         return ax

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..model import ParameterError
 from . import _cells, _input
-from ._base import Analysis, positive, result
+from ._base import Analysis, legend, positive, result
 
 METHODS = ("auto", "cells", "grid")
 
@@ -165,5 +165,5 @@ class VelocityCorrelation(Analysis):
             ax.axvline(self.correlation_length, color=colours[1], ls="--", lw=1,
                        label=rf"first zero $r_0 = {self.correlation_length:.3g}$")
         style.label_axes(ax, "r", "corr")
-        style.legend(ax, theme, loc="best")
+        legend(ax, theme)
         return ax

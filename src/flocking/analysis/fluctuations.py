@@ -23,7 +23,7 @@ import numpy as np
 
 from ..model import ParameterError
 from . import _input
-from ._base import Analysis, fit_line, format_value, log_ticks, result
+from ._base import Analysis, fit_line, format_value, legend, log_ticks, result
 
 
 def default_sizes(box: np.ndarray, n: int, count: int = 24) -> np.ndarray:
@@ -155,5 +155,5 @@ class NumberFluctuations(Analysis):
                   label=r"$\propto\langle n\rangle^{1/2}$")
         style.label_axes(ax, "mean_count", "count_std")
         log_ticks(ax)
-        style.legend(ax, theme, loc="best")
+        legend(ax, theme)
         return ax

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..model import ParameterError
 from . import _input
-from ._base import Analysis, log_ticks, positive, result
+from ._base import Analysis, legend, log_ticks, positive, result
 
 #: Bytes of FFT work space per chunk of particles.
 _CHUNK_BYTES = 1 << 26
@@ -226,5 +226,5 @@ class MeanSquareDisplacement(Analysis):
         ax.loglog(x, self.msd[-1] * (x / x[-1]), "--", color=colours[-1], lw=1, label=r"$\propto\tau$")
         style.label_axes(ax, "lag", "msd")
         log_ticks(ax)
-        style.legend(ax, theme, loc="best")
+        legend(ax, theme)
         return ax

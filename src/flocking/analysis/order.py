@@ -38,7 +38,7 @@ import numpy as np
 from ..model import ParameterError
 from ..observables import polar_moments
 from . import _input
-from ._base import Analysis, format_value, positive, result
+from ._base import Analysis, format_value, legend, positive, result
 
 
 def autocorrelation(x: np.ndarray) -> np.ndarray:
@@ -288,5 +288,5 @@ class PolarOrder(Analysis):
         ax.axhline(self.mean, color=colours[1], lw=1.2,
                    label=rf"$\langle\varphi\rangle = {format_value(self.mean, self.mean_error)}$")
         style.label_axes(ax, "time", "phi")
-        style.legend(ax, theme, loc="best")
+        legend(ax, theme)
         return ax

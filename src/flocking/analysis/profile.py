@@ -58,7 +58,7 @@ import numpy as np
 
 from ..model import ParameterError
 from . import _input
-from ._base import Analysis, positive, result
+from ._base import Analysis, legend, positive, result
 
 
 def smooth(profile: np.ndarray, sigma: float = 1.0) -> np.ndarray:
@@ -285,5 +285,5 @@ class DensityProfile(Analysis):
         a = "xyz"[self.axis_used]
         style.label_axes(ax, f"${a}$, heading toward {'+' if self.direction > 0 else '-'}${a}$",
                          rf"density $\rho({a})$")
-        style.legend(ax, theme, loc="best")
+        legend(ax, theme)
         return ax

@@ -211,7 +211,7 @@ def choose_window(start, polar_source, frames, model) -> dict:
     from ..analysis import PolarOrder
 
     if start != "auto":
-        return {"start": start, "step": None, "rule": "--start"}
+        return {"start": start, "step": start if isinstance(start, int) else None, "rule": "--start"}
     last = int(frames.steps[-1]) if frames is not None else None
     try:
         with warnings.catch_warnings():
@@ -226,14 +226,24 @@ def choose_window(start, polar_source, frames, model) -> dict:
         return {"start": None, "step": int(frames.steps[0]) if frames is not None else 0,
                 "rule": "the whole run (a single frame)"}
     step = polar.window_start if last is None else min(polar.window_start, last)
-    rule = "transient detected" if polar.window_rule == "detected" else "half the run (no transient detected)"
+    if polar.window_rule != "detected":
+        rule = "half the run (no steady window found)"
+    else:
+        rule = "transient detected" if step > polar.steps[0] else "no transient found"
     return {"start": step, "step": step, "rule": rule}
+
+
+def window_text(window: dict) -> str:
+    """Where the window starts, and why."""
+    if window["step"] is None:
+        return f"the first {window['start']:.0%} of the run left out (--start)"
+    return f"from step {window['step']} ({window['rule']})"
 
 
 def window_line(window: dict) -> str:
     if window["rule"] == "--start":
-        return "window: as given by --start"
-    return f"window: from step {window['step']} ({window['rule']}; --start STEP to choose)"
+        return f"window: {window_text(window)}"
+    return f"window: {window_text(window)[:-1]}; --start STEP to choose)"
 
 
 def hint(name: str, obj, message: str) -> str:
@@ -265,8 +275,7 @@ def caption(model, frames, window) -> str:
     elif frames is not None:
         first = frames[0]
         parts = [f"{first.dim}D", f"N = {first.n}", "L = " + " × ".join(f"{b:.4g}" for b in first.box)]
-    if window["step"] is not None:
-        parts.append(f"from step {window['step']} ({window['rule'].split(' (')[0]})")
+    parts.append(window_text(window))
     return " · ".join(parts)
 
 
@@ -310,7 +319,8 @@ def summary_lines(results) -> list[str]:
         elif name == "clusters":
             lines.append(f"clusters: largest {obj.largest_fraction_mean:.3f} of N (mean over {obj.num_frames} "
                          f"frames; last frame {obj.largest_fraction:.3f}), weight-average size "
-                         f"{obj.weight_average_size:.4g}, number-average size {obj.number_average_size:.4g}")
+                         f"{format_value(obj.weight_average_size)}, number-average size "
+                         f"{format_value(obj.number_average_size)}")
         elif name == "boxcount":
             error = "no error estimate from two box sizes" if math.isnan(obj.dimension_error) else None
             lines.append(f"box counting: D {format_value(obj.dimension, obj.dimension_error, ' ± ')}"
