@@ -263,6 +263,16 @@ def model_of(system) -> Model | None:
     return None
 
 
+def steps_within_half(model: Model, length: float) -> int:
+    """The most steps over which the run's particles (speed ``v0 dt`` per step at most)
+    move less than ``length / 2``: how far apart frames can be to be followed.
+
+    >>> steps_within_half(Model(n=10, box=16.0, speed=0.5), 16.0)
+    15
+    """
+    return max(math.ceil(length / 2 / (model.speed * model.dt)) - 1, 0)
+
+
 def time_step(dt, model: Model | None) -> float:
     """The time step to turn steps into time: ``dt`` when given, else the run's, else 1."""
     if dt is not None:

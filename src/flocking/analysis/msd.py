@@ -121,19 +121,21 @@ def direct_sums(pos: np.ndarray, where: np.ndarray, length: int) -> tuple[np.nda
     return sums, np.bincount(lags[lags >= 0], minlength=length).astype(float)
 
 
-def _check_unwrapping(model, gap: int, box: np.ndarray, largest: np.ndarray) -> None:
-    """Refuse frames too far apart for the run's speed; warn when the data suggest it."""
+def refuse_far_frames(model, gap: int, box: np.ndarray) -> None:
+    """Refuse frames ``gap`` steps apart when the run's particles can move half the box."""
     half = float(box.min()) / 2
-    if model is not None:
-        reach = model.speed * model.dt * gap
-        if reach >= half:
-            every = max(math.ceil(half / (model.speed * model.dt)) - 1, 0)
-            advice = (f"use frames at most {every} steps apart (flocking run --every {every})" if every else
-                      "speed x dt alone reaches half the box: no frame spacing can be unwrapped")
-            raise ParameterError(f"system: frames {gap} steps apart let a particle move up to {reach:.4g} "
-                                 f"(speed x dt x steps), at least half the box side {2 * half:.4g}, so "
-                                 f"positions cannot be unwrapped for the MSD; {advice}")
-        return
+    reach = model.speed * model.dt * gap
+    if reach >= half:
+        every = _input.steps_within_half(model, 2 * half)
+        advice = (f"use frames at most {every} steps apart (flocking run --every {every})" if every else
+                  "speed x dt alone reaches half the box: no frame spacing can be unwrapped")
+        raise ParameterError(f"system: frames {gap} steps apart let a particle move up to {reach:.4g} "
+                             f"(speed x dt x steps), at least half the box side {2 * half:.4g}, so "
+                             f"positions cannot be unwrapped for the MSD; {advice}")
+
+
+def warn_far_frames(largest: np.ndarray, box: np.ndarray) -> None:
+    """Warn when the largest displacement between frames exceeds a quarter of a box side."""
     ratio = largest / box
     if np.any(ratio > 0.25):
         a = int(np.argmax(ratio))
@@ -193,10 +195,10 @@ class MeanSquareDisplacement(Analysis):
             raise ParameterError("system: frame steps must increase (give steps=... for inputs without steps)")
         gaps = np.diff(steps)
         if frames.model is not None:  # refuse before reading every frame
-            _check_unwrapping(frames.model, int(gaps.max()), frames[0].box, None)
+            refuse_far_frames(frames.model, int(gaps.max()), frames[0].box)
         pos, largest = unwrap(frames)
         if frames.model is None:
-            _check_unwrapping(None, int(gaps.max()), frames[0].box, largest)
+            warn_far_frames(largest, frames[0].box)
         pos -= pos.mean(axis=0)  # small numbers: the FFT's rounding is relative to them
         unit = int(np.gcd.reduce(gaps))
         where = (steps - steps[0]) // unit

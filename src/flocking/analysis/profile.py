@@ -51,7 +51,6 @@ than ``L / 2`` at that speed give no band speed (NaN) and a ``RuntimeWarning``.
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
@@ -246,11 +245,11 @@ class DensityProfile(Analysis):
         if model is not None and pairs.any():
             reach = model.speed * model.dt * np.diff(steps)
             if np.any(reach[pairs] >= length / 2):
-                every = max(math.ceil(length / 2 / (model.speed * model.dt)) - 1, 1)
+                every = _input.steps_within_half(model, length)
                 warnings.warn(f"DensityProfile: frames {int(np.diff(steps)[pairs].max())} steps apart let bands "
                               f"move up to {reach[pairs].max():.4g} (speed x dt x steps), at least half the box "
                               f"side {length:.4g}, so their speed cannot be told; use frames at most {every} steps "
-                              "apart", RuntimeWarning, stacklevel=2)
+                              f"apart (flocking run --every {every})", RuntimeWarning, stacklevel=2)
                 pairs &= reach < length / 2
         for t in np.flatnonzero(pairs):
             shift = best_shift(counts[t].astype(float), counts[t + 1].astype(float))
