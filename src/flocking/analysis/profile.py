@@ -110,7 +110,7 @@ def find_bands(counts: np.ndarray, variance: NullVariance, threshold: float, z_m
     for first, length in runs_above(smoothed, (1 + threshold) * mean):
         window = ((first + np.arange(-2, length + 2)) % b)[:b]
         v = variance(len(window))
-        z = (counts[window] - mean).sum() / np.sqrt(v) if v > 0 else np.inf
+        z = (counts[window] - mean).sum() / np.sqrt(v) if v > 0 else 0.0  # v = 0: the whole box, M = 0
         if z >= z_min:
             windows.append(window)
             zs.append(float(z))
