@@ -1,11 +1,12 @@
 """Validation of flocking.analysis against exact cases."""
 
+import json
 import math
+import warnings
 
 import numpy as np
 import pytest
 
-import flocking
 import flocking.analysis as fa
 
 
@@ -83,6 +84,30 @@ def test_square_and_line_points():
     line = np.c_[rng.uniform(0, 10, 50000), np.full(50000, 3.3)]
     bc = fa.BoxCounting().compute(line, box=10.0)
     assert abs(bc.dimension - 1) < max(3 * bc.dimension_error, 0.01)
+
+
+def test_fit_through_two_points_has_no_error():
+    from flocking.analysis._base import fit_line
+
+    assert math.isnan(fit_line([0.0, 1.0], [1.0, 3.0])[2])
+    assert fit_line([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])[2] == 0.0
+    # with known errors, the formal error needs no degree of freedom: sigma sqrt(2) / (x1 - x0)
+    assert fit_line([0.0, 2.0], [1.0, 3.0], [0.1, 0.1])[2] == pytest.approx(0.1 * math.sqrt(2) / 2)
+
+
+def test_boxcount_of_few_points_in_3d_is_flagged():
+    # the tester's case: 1000 points in 3D leave two sizes (L/2: 8 boxes, L/4: 64) before the count
+    # passes N/10 = 100; a line through two points has no error (it read "D 2.644 +- 0.000")
+    rng = np.random.default_rng(9)
+    with pytest.warns(RuntimeWarning, match="only two box sizes"):
+        bc = fa.BoxCounting().compute(rng.uniform(0, 10, (1000, 3)), box=10.0)
+    assert bc.fitted.sum() == 2 and math.isnan(bc.dimension_error)
+    assert bc.dimension == pytest.approx(3.0, abs=0.05)  # 8 and 64 boxes all occupied
+    assert json.loads(json.dumps(bc.to_dict()))["dimension_error"] is None
+    with warnings.catch_warnings():  # three sizes or more, or a range asked for: nothing to flag
+        warnings.simplefilter("error")
+        assert fa.BoxCounting().compute(rng.uniform(0, 10, (10000, 3)), box=10.0).fitted.sum() == 3
+        fa.BoxCounting(fit_range=(2.5, 5.0)).compute(rng.uniform(0, 10, (1000, 3)), box=10.0)
 
 
 def test_boxcount_fit_range():
@@ -165,6 +190,21 @@ def test_clusters_hand_built_and_periodic():
     assert cl.num_clusters == 5 and cl.largest_fraction == pytest.approx(3 / 9)
 
 
+def test_cluster_averages_over_frames():
+    # frame 1: sizes 3, 2, 1; frame 2: sizes 4, 1, 1 -> n_s summed: {1: 3, 2: 1, 3: 1, 4: 1}
+    one = np.array([[1.0, 1.0], [1.5, 1.0], [2.0, 1.0], [5.0, 5.0], [5.5, 5.0], [8.0, 2.0]])
+    two = np.array([[1.0, 1.0], [1.5, 1.0], [2.0, 1.0], [2.5, 1.0], [5.0, 5.0], [8.0, 2.0]])
+    cl = fa.Clusters(radius=0.6).compute([(10.0, one), (10.0, two)])
+    assert cl.size_values.tolist() == [1, 2, 3, 4]
+    assert cl.size_counts_total.tolist() == [3, 1, 1, 1]
+    assert cl.size_counts_per_frame.tolist() == [1.5, 0.5, 0.5, 0.5]
+    assert cl.number_average_size == pytest.approx(12 / 6)           # sum s n_s / sum n_s
+    assert cl.weight_average_size == pytest.approx((3 + 4 + 9 + 16) / 12)  # sum s^2 n_s / sum s n_s
+    assert cl.largest_fraction == pytest.approx(4 / 6)               # the last frame
+    assert cl.largest_fraction_mean == pytest.approx((3 / 6 + 4 / 6) / 2)
+    assert cl.num_frames == 2
+
+
 def test_clusters_3d_and_brute_force():
     rng = np.random.default_rng(8)
     pts = rng.uniform(0, 6, (500, 3))
@@ -184,72 +224,3 @@ def test_clusters_radius_larger_than_half_box():
     pts = np.array([[0.0, 0.0], [1.5, 0.0], [0.0, 1.5]])
     cl = fa.Clusters(radius=1.6).compute((3.0, pts))
     assert cl.num_clusters == 1
-
-
-# --- MSD ---------------------------------------------------------------------------
-
-def persistent_walk_msd(n, v, eta):
-    c = math.sin(eta / 2) / (eta / 2)
-    m = np.arange(1, n)
-    return v * v * (n + 2 * np.sum((n - m) * c**m))
-
-
-def test_persistent_random_walk_msd():
-    rng = np.random.default_rng(2)
-    n, steps, v, eta, box = 3000, 60, 0.7, 1.5, 12.0
-    theta = rng.uniform(0, 2 * np.pi, n)
-    pos = rng.uniform(0, box, (n, 2))
-    frames = []
-    for t in range(steps + 1):
-        u = np.c_[np.cos(theta), np.sin(theta)]
-        frames.append((box, pos.copy(), u))
-        theta = theta + eta * rng.uniform(-0.5, 0.5, n)
-        pos = (pos + v * np.c_[np.cos(theta), np.sin(theta)]) % box  # backward update
-    msd = fa.MeanSquareDisplacement().compute(frames, steps=np.arange(steps + 1))
-    exact = np.array([persistent_walk_msd(k, v, eta) for k in msd.lags])
-    np.testing.assert_allclose(msd.msd, exact, rtol=0.05)
-    assert msd.lags.tolist() == list(range(1, steps + 1))
-    assert msd.origins[0] == steps
-
-
-def test_msd_of_the_engine_without_neighbours(tmp_path):
-    # a radius far below the spacing: every particle is a persistent random walker
-    model = flocking.Model(n=2000, box=40.0, radius=1e-4, noise=1.0, speed=0.5, seed=3)
-    sim = flocking.Simulation(model)
-    path = tmp_path / "t.gsd"
-    sim.writers.append(flocking.GSDWriter(path, every=2))
-    sim.run(60)
-    with flocking.open(path) as traj:
-        msd = fa.MeanSquareDisplacement(max_lag=40).compute(traj)
-    exact = np.array([persistent_walk_msd(k, 0.5, 1.0) for k in msd.lags])
-    np.testing.assert_allclose(msd.msd, exact, rtol=0.08)
-    assert msd.lags.max() == 40
-
-
-# --- density profile ---------------------------------------------------------------
-
-def test_band_moves_at_known_speed():
-    rng = np.random.default_rng(6)
-    box = np.array([20.0, 60.0])
-    frames = []
-    for t in range(6):
-        y = np.r_[rng.uniform(0, 60, 6000), (rng.uniform(20, 26, 6000) + 1.5 * t) % 60]
-        pts = np.c_[rng.uniform(0, 20, len(y)), y]
-        u = np.tile([0.0, -1.0], (len(y), 1))  # the flock moves toward -y; the band toward +y
-        frames.append((box, pts, u))
-    # tuples carry no step: give steps through snapshots
-    snaps = [fa._input.from_box_points(*f, step=10 * t) for t, f in enumerate(frames)]
-    dp = fa.DensityProfile(bin_width=0.5).compute(snaps)
-    assert dp.axis_used == 1 and dp.direction == -1
-    assert dp.band_count == 1
-    assert dp.band_width == pytest.approx(6.0, rel=0.1)
-    assert dp.band_speed == pytest.approx(-0.15, rel=0.05)
-
-
-def test_homogeneous_has_no_band():
-    rng = np.random.default_rng(7)
-    pts = rng.uniform(0, 50, (50000, 2))
-    u = np.tile([1.0, 0.0], (50000, 1))
-    dp = fa.DensityProfile().compute((50.0, pts, u))
-    assert dp.band_count == 0 and math.isnan(dp.band_width)
-    assert dp.density.mean() == pytest.approx(20.0)

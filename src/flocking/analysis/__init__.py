@@ -2,8 +2,10 @@
 
 Each quantity is a class: parameters in the constructor, ``compute(system)`` returns the
 object, results are read-only properties (:class:`NotComputedError` before ``compute``),
-``plot(ax=None)`` and ``to_dict()``. ``system`` is a trajectory (``flocking.open``), a GSD
-path or run folder, a frame, a ``(box, points)`` pair, or a list of frames.
+``plot(ax=None, theme=None)`` in the house style (:mod:`flocking.viz.style`) and
+``to_dict()``. ``system`` is a trajectory (``flocking.open``), a GSD path or run folder, a
+frame, a ``(box, points)`` pair, or a list of frames. Steps become time through the run's
+``dt`` (``t = step * dt``); positions in results are in the input's coordinates.
 
 >>> import numpy as np, flocking.analysis as fa
 >>> points = np.random.default_rng(0).uniform(0, 10, (2000, 2))

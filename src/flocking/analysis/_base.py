@@ -3,7 +3,11 @@
 A quantity takes its parameters in the constructor; ``compute(system)`` fills its
 results and returns the object; results are read-only properties that raise
 :class:`NotComputedError` until ``compute`` ran. ``to_dict()`` gives plain JSON types
-(NaN becomes ``None``) and ``plot(ax=None)`` draws on a matplotlib axis, imported lazily.
+(NaN becomes ``None``) and ``plot(ax=None, theme=None)`` draws on a matplotlib axes in the
+house style (:mod:`flocking.viz.style`), imported lazily: on the axes given, touching
+nothing else of its figure, or on a new ``column``-sized figure when none is given. The
+colours follow ``theme`` (``"dark"`` or ``"light"``); by default that of a house-style
+figure, else the one that reads on the axes' background.
 """
 
 from __future__ import annotations
@@ -62,16 +66,59 @@ class Analysis:
         out.update({key: _plain(getattr(self, key)) for key in self._keys})
         return out
 
-    def _axis(self, ax):
-        if ax is None:
-            import matplotlib.pyplot as plt
+    def _axes(self, ax, theme):
+        """``(ax, theme name)``: the axes to draw on (a new house-style figure's when
+        ``ax`` is ``None``) and the theme whose colours to draw with."""
+        from ..viz import style
+        from ..viz.colors import get_theme
 
-            _, ax = plt.subplots(figsize=(5, 4))
-        return ax
+        if theme is not None:
+            theme = get_theme(theme).name
+        if ax is None:
+            _, ax = style.figure("column", theme=theme or "dark")
+        return ax, theme or theme_of(ax)
 
     def __repr__(self) -> str:
         params = ", ".join(f"{k}={v!r}" for k, v in self.parameters().items())
         return f"{type(self).__name__}({params})"
+
+
+def theme_of(ax) -> str:
+    """The theme of a house-style figure, else ``"dark"`` on a dark background and
+    ``"light"`` on a light one."""
+    from matplotlib.colors import to_rgb
+
+    name = getattr(ax.figure, "_flocking_theme", None)
+    if name is not None:
+        return name
+    r, g, b = to_rgb(ax.get_facecolor())
+    return "dark" if 0.2126 * r + 0.7152 * g + 0.0722 * b < 0.5 else "light"
+
+
+def legend(ax, theme: str):
+    """The house legend on a backing of the axes' own colour, so that curves under it
+    never cross its text."""
+    from ..viz import style
+
+    return style.legend(ax, theme, loc="best", frameon=True, facecolor=ax.get_facecolor(), edgecolor="none",
+                        framealpha=0.8)
+
+
+def log_ticks(ax) -> None:
+    """Tick labels of the log axes of ``ax`` as plain numbers (``20``, ``0.5``) between
+    0.001 and 10^4, powers of ten beyond; minor ticks labelled only where matplotlib
+    would (an axis spanning few decades)."""
+    from matplotlib import ticker
+
+    class Plain(ticker.LogFormatterSciNotation):
+        def __call__(self, x, pos=None):
+            label = super().__call__(x, pos)
+            return f"{x:g}" if label and 1e-3 <= abs(x) < 1e4 else label
+
+    for axis in (ax.xaxis, ax.yaxis):
+        if axis.get_scale() == "log":
+            axis.set_major_formatter(Plain())
+            axis.set_minor_formatter(Plain(labelOnlyBase=False, minor_thresholds=(1, 0.4)))
 
 
 def _plain(value):
@@ -106,10 +153,13 @@ def fit_line(x, y, sigma=None):
 
     The error is the formal one from ``sigma`` (when given), scaled up by
     ``sqrt(chi^2 / dof)`` when the scatter exceeds it; without ``sigma`` it comes from
-    the residuals alone. A perfect fit has error 0.
+    the residuals alone, so a perfect fit has error 0, and a line through two points
+    (no degree of freedom) has none: NaN.
 
     >>> fit_line([0, 1, 2], [1, 3, 5])
     (2.0, 1.0, 0.0)
+    >>> fit_line([0, 1], [1, 3])
+    (2.0, 1.0, nan)
     """
     x, y = np.asarray(x, float), np.asarray(y, float)
     if len(x) < 2:
@@ -121,8 +171,26 @@ def fit_line(x, y, sigma=None):
     intercept = (sy - slope * sx) / sw
     dof = len(x) - 2
     chi2 = float((w * (y - slope * x - intercept) ** 2).sum())
+    if dof == 0 and sigma is None:
+        return float(slope), float(intercept), float("nan")
     scale = chi2 / dof if dof > 0 else 0.0
     if sigma is not None:
         scale = max(scale, 1.0)
     error = math.sqrt(max(sw / delta * scale, 0.0))
     return float(slope), float(intercept), float(round(error, 15))
+
+
+def format_value(value, error=float("nan"), pm: str = r" \pm ") -> str:
+    """``value pm error`` with the value rounded to the error's second significant digit
+    (the value alone, to 4 digits or as a whole number from 10^4 on, without a finite
+    positive error); mathtext's ``\\pm`` by default, for text ``pm=" ± "``.
+
+    >>> format_value(2.64417, 0.01234), format_value(2.64417), format_value(0.5, 0.0), format_value(17160.4)
+    ('2.644 \\\\pm 0.012', '2.644', '0.5', '17160')
+    """
+    if not math.isfinite(value):
+        return "n/a"
+    if not math.isfinite(error) or error <= 0:
+        return f"{value:.0f}" if 1e4 <= abs(value) < 1e9 else f"{value:.4g}"
+    decimals = max(0, 1 - math.floor(math.log10(error)))
+    return f"{value:.{decimals}f}{pm}{error:.{decimals}f}"

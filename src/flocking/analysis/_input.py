@@ -5,13 +5,17 @@ folder holding ``trajectory.gsd``, any ``gsd.hoomd`` trajectory or frame (HOOMD
 conventions, ours or another program's), a :class:`flocking.Frame`, a ``(box, points)``
 or ``(box, points, velocities)`` tuple (``box`` a number, one length per axis, freud's
 ``[Lx, Ly, Lz, xy, xz, yz]`` with ``Lz = 0`` in 2D, or a ``freud.box.Box``), or a list of
-any of these frames. Positions are wrapped into ``[0, L)`` in double precision, so both
-centred (HOOMD, freud) and corner-origin coordinates work.
+any of these frames. Positions are wrapped into ``[0, L)`` in double precision; each
+snapshot keeps the ``origin`` (lower corner) of the box in the input's own coordinates,
+so that results given as positions (the slabs of a density profile) read in them:
+``-L/2`` for GSD files, frames and freud boxes (centred, HOOMD's convention); for a
+plain box, 0 when every point lies in ``[0, L]``, else ``-L/2`` when every point lies in
+``[-L/2, L/2]`` (else 0, and the points are wrapped).
 
 >>> import numpy as np
 >>> frames = as_frames((10.0, np.array([[1.0, 2.0], [-4.0, 4.5]])))
->>> len(frames), frames[0].dim, frames[0].positions.tolist()
-(1, 2, [[1.0, 2.0], [6.0, 4.5]])
+>>> len(frames), frames[0].dim, frames[0].positions.tolist(), frames[0].origin.tolist()
+(1, 2, [[6.0, 7.0], [1.0, 9.5]], [-5.0, -5.0])
 """
 
 from __future__ import annotations
@@ -29,14 +33,17 @@ from ..trajectory import Frame, Trajectory, _frame
 
 class Snapshot:
     """One frame as the analysis sees it: ``step``, ``box`` (d,), ``positions`` (N, d) in
-    ``[0, L)`` as float64 and unit ``headings`` (N, d), or ``None`` when no velocity is known."""
+    ``[0, L)`` as float64, unit ``headings`` (N, d) or ``None`` when no velocity is known,
+    and ``origin`` (d,): where the input's coordinates put the box's lower corner (the
+    input's position ``x`` is ``origin + positions``, modulo the box)."""
 
-    __slots__ = ("step", "box", "positions", "headings")
+    __slots__ = ("step", "box", "positions", "headings", "origin")
 
-    def __init__(self, step: int, box, positions, headings=None):
+    def __init__(self, step: int, box, positions, headings=None, origin=None):
         self.step = int(step)
         self.box = np.asarray(box, dtype=np.float64)
-        self.positions = wrap(np.asarray(positions, dtype=np.float64), self.box)
+        self.origin = np.zeros_like(self.box) if origin is None else np.asarray(origin, dtype=np.float64)
+        self.positions = wrap(np.asarray(positions, dtype=np.float64) - self.origin, self.box)
         self.headings = None if headings is None else unit(headings)
 
     @property
@@ -67,12 +74,14 @@ def unit(v) -> np.ndarray:
 
 
 class Frames(Sequence):
-    """A lazy, indexable sequence of snapshots (a trajectory is read frame by frame)."""
+    """A lazy, indexable sequence of snapshots (a trajectory is read frame by frame);
+    ``model`` is the :class:`~flocking.Model` stored in a flocking trajectory, else ``None``."""
 
-    def __init__(self, items, convert, steps=None):
+    def __init__(self, items, convert, steps=None, model: Model | None = None):
         self._items = items
         self._convert = convert
         self._steps = steps
+        self.model = model
 
     def __len__(self) -> int:
         return len(self._items)
@@ -80,7 +89,7 @@ class Frames(Sequence):
     def __getitem__(self, index):
         if isinstance(index, slice):
             steps = None if self._steps is None else self._steps[index]
-            return Frames(_Sliced(self._items, range(len(self))[index]), self._convert, steps)
+            return Frames(_Sliced(self._items, range(len(self))[index]), self._convert, steps, self.model)
         return self._convert(self._items[index])
 
     @property
@@ -102,9 +111,11 @@ class _Sliced:
         return self._items[self._indices[i]]
 
 
-def _box_from(box, ncols: int) -> np.ndarray:
+def _box_from(box, ncols: int) -> tuple[np.ndarray, bool]:
+    """``(side lengths, centred)``: ``centred`` when the box follows freud's convention."""
     if hasattr(box, "Lx") and hasattr(box, "is2D"):  # freud.box.Box and look-alikes
-        return np.array([box.Lx, box.Ly] if box.is2D else [box.Lx, box.Ly, box.Lz], dtype=np.float64)
+        return np.array([box.Lx, box.Ly] if box.is2D else [box.Lx, box.Ly, box.Lz], dtype=np.float64), True
+    freud = False
     if isinstance(box, numbers.Real) and not isinstance(box, bool):
         lengths = np.full(2 if ncols == 2 else 3, float(box))
     else:
@@ -116,13 +127,14 @@ def _box_from(box, ncols: int) -> np.ndarray:
             if np.any(lengths[3:] != 0):
                 raise ParameterError("box: tilted boxes are not supported (xy, xz, yz must be 0)")
             lengths = lengths[:2] if lengths[2] == 0 else lengths[:3]
+            freud = True
         elif len(lengths) == 1:
             lengths = np.full(2 if ncols == 2 else 3, lengths[0])
         elif len(lengths) not in (2, 3):
             raise ParameterError(f"box: must have 1, 2, 3 or 6 entries (got {len(lengths)})")
     if not np.all(np.isfinite(lengths)) or np.any(lengths <= 0):
         raise ParameterError(f"box: side lengths must be positive (got {lengths.tolist()})")
-    return lengths
+    return lengths, freud
 
 
 def from_box_points(box, points, velocities=None, step: int = 0) -> Snapshot:
@@ -132,23 +144,27 @@ def from_box_points(box, points, velocities=None, step: int = 0) -> Snapshot:
         raise ParameterError(f"points: must be a non-empty (N, 2) or (N, 3) array (got shape {points.shape})")
     if not np.all(np.isfinite(points)):
         raise ParameterError("points: must be finite")
-    lengths = _box_from(box, points.shape[1])
+    lengths, centred = _box_from(box, points.shape[1])
     dim = len(lengths)
     if points.shape[1] < dim:
         raise ParameterError(f"points: a {dim}D box needs {dim} columns (got {points.shape[1]})")
+    points = points[:, :dim]
+    if not centred and not np.all((points >= 0) & (points <= lengths)):
+        centred = bool(np.all(np.abs(points) <= lengths / 2))
     headings = None
     if velocities is not None:
         velocities = np.asarray(velocities, dtype=np.float64)
         if velocities.shape[0] != len(points) or velocities.ndim != 2 or velocities.shape[1] < dim:
             raise ParameterError(f"velocities: must have shape ({len(points)}, {dim}) (got {velocities.shape})")
         headings = velocities[:, :dim]
-    return Snapshot(step, lengths, points[:, :dim], headings)
+    return Snapshot(step, lengths, points, headings, -lengths / 2 if centred else None)
 
 
 def from_frame(frame: Frame) -> Snapshot:
     v = frame.velocities[:, : frame.dim].astype(np.float64)
     headings = v if np.any(v) else None
-    return Snapshot(frame.step, frame.box_lengths, frame.positions.astype(np.float64), headings)
+    return Snapshot(frame.step, frame.box_lengths, frame.positions.astype(np.float64), headings,
+                    -frame.box_lengths / 2)
 
 
 def _from_any_frame(item) -> Snapshot:
@@ -197,7 +213,7 @@ def as_frames(system) -> Frames:
             raise ParameterError(f"system: {path!r} is not a readable GSD file ({err})") from None
         return as_frames(traj)
     if isinstance(system, Trajectory):
-        return Frames(system, from_frame, _gsd_steps(system._file))
+        return Frames(system, from_frame, _gsd_steps(system._file), _stored_model(system))
     if hasattr(system, "file") and hasattr(system, "__getitem__") and hasattr(system, "__len__"):
         return Frames(system, _from_any_frame, _gsd_steps(system))  # a gsd.hoomd trajectory
     if _is_box_points(system) or _looks_like_frame(system):
@@ -224,17 +240,44 @@ def _gsd_steps(handle):
         return None
 
 
-def model_of(system) -> Model | None:
-    """The stored :class:`~flocking.Model` of a flocking trajectory, path or run folder."""
+def _stored_model(traj: Trajectory) -> Model | None:
     try:
-        if isinstance(system, Trajectory):
-            return system.model
-        if isinstance(system, (str, os.PathLike)):
-            with Trajectory(trajectory_path(system)) as traj:
-                return traj.model
-    except Exception:
+        return traj.model
+    except Exception:  # parameters written by another version: analyse as a foreign file
         return None
+
+
+def model_of(system) -> Model | None:
+    """The stored :class:`~flocking.Model` of a flocking trajectory, path, run folder or
+    :class:`Frames`."""
+    if isinstance(system, Frames):
+        return system.model
+    if isinstance(system, Trajectory):
+        return _stored_model(system)
+    if isinstance(system, (str, os.PathLike)):
+        try:
+            with Trajectory(trajectory_path(system)) as traj:
+                return _stored_model(traj)
+        except Exception:
+            return None
     return None
+
+
+def steps_within_half(model: Model, length: float) -> int:
+    """The most steps over which the run's particles (speed ``v0 dt`` per step at most)
+    move less than ``length / 2``: how far apart frames can be to be followed.
+
+    >>> steps_within_half(Model(n=10, box=16.0, speed=0.5), 16.0)
+    15
+    """
+    return max(math.ceil(length / 2 / (model.speed * model.dt)) - 1, 0)
+
+
+def time_step(dt, model: Model | None) -> float:
+    """The time step to turn steps into time: ``dt`` when given, else the run's, else 1."""
+    if dt is not None:
+        return dt
+    return model.dt if model is not None else 1.0
 
 
 def select(frames: Frames, start=None, count=None) -> Frames:

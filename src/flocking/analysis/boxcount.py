@@ -5,9 +5,13 @@ cube's side when no box is known) or of ``2^k`` pixels (a boolean image); ``N(ep
 the number of boxes holding at least one point or pixel, and the dimension is the
 slope of ``log N`` against ``log(1 / eps)`` over the fit range. The default range for
 points starts at ``eps = L/2`` and stops before the boxes get so small that ``N(eps)``
-exceeds a tenth of the number of points (there the count saturates); for an image it
-runs from one pixel to half the image. The error is the fit's standard error (0 for
-an exact power law).
+exceeds a tenth of the number of points (there the count saturates: for uniform points,
+``lambda`` per box on average, the local slope is ``d (1 - lambda e^-lambda / (1 -
+e^-lambda))``, 0.05 % low at ``lambda = 10``, 3.4 % at 5); for an image it runs from one pixel
+to half the image. The error is the fit's standard error (0 for an exact power law); a fit
+through two sizes has no degree of freedom left and so no error (NaN), and a default range
+that holds only two sizes (too few points for their dimension, such as 1000 points in 3D)
+raises a ``RuntimeWarning``.
 
 >>> import numpy as np
 >>> i, j = np.indices((64, 64))
@@ -19,11 +23,13 @@ an exact power law).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..model import ParameterError
 from . import _input
-from ._base import Analysis, fit_line, result
+from ._base import Analysis, fit_line, format_value, legend, log_ticks, result
 
 
 def image_counts(image: np.ndarray):
@@ -100,7 +106,7 @@ class BoxCounting(Analysis):
     counts = result("counts", "Occupied boxes N(eps).")
     fitted = result("fitted", "Boolean mask of the scales in the fit.")
     dimension = result("dimension", "Box-counting dimension.")
-    dimension_error = result("dimension_error", "Standard error of the fitted slope.")
+    dimension_error = result("dimension_error", "Standard error of the fitted slope (NaN from two sizes).")
     intercept = result("intercept", "log N = dimension log(1/eps) + intercept.")
     fit_range_used = result("fit_range_used", "(eps_min, eps_max) of the fitted scales.")
 
@@ -145,20 +151,30 @@ class BoxCounting(Analysis):
         if fitted.sum() < 2:
             raise ParameterError(f"fit_range: fewer than two box sizes to fit (sizes available: "
                                  f"{scales.tolist()})")
+        if self.fit_range is None and fitted.sum() == 2:
+            warnings.warn(f"BoxCounting: the default fit range holds only two box sizes ({scales[fitted].max():.4g} "
+                          f"and {scales[fitted].min():.4g}) before the count saturates, so the dimension has no "
+                          "error estimate; use more points, or give fit_range", RuntimeWarning, stacklevel=2)
         slope, intercept, err = fit_line(np.log(1 / scales[fitted]), np.log(counts[fitted]))
         self._store(scales=scales, counts=counts, fitted=fitted, dimension=slope, dimension_error=err,
                     intercept=intercept, fit_range_used=(float(scales[fitted].min()), float(scales[fitted].max())))
         return self
 
-    def plot(self, ax=None):
-        """``N(eps)`` against ``1/eps``, log-log, with the fitted line."""
-        ax = self._axis(ax)
-        inv = 1 / self.scales
-        ax.loglog(inv, self.counts, "o", ms=4, label="boxes")
-        x = inv[self.fitted]
-        ax.loglog(x, np.exp(self.intercept) * x**self.dimension, "-",
-                  label=f"D = {self.dimension:.3f} ± {self.dimension_error:.3f}")
-        ax.set_xlabel("1 / box side")
-        ax.set_ylabel("occupied boxes N")
-        ax.legend(loc="best")
+    def plot(self, ax=None, theme=None):
+        """``N(eps)`` against ``eps``, log-log, with the fitted line over the fitted sizes
+        (filled markers)."""
+        from ..viz import style
+
+        ax, theme = self._axes(ax, theme)
+        colours = style.palette(theme)
+        if not self.fitted.all():
+            ax.loglog(self.scales[~self.fitted], self.counts[~self.fitted], "o", ms=4, mfc="none", color=colours[0],
+                      label="not fitted")
+        ax.loglog(self.scales[self.fitted], self.counts[self.fitted], "o", ms=4, color=colours[0], label="fitted")
+        x = self.scales[self.fitted]
+        ax.loglog(x, np.exp(self.intercept) * x ** -self.dimension, "-", color=colours[1], lw=1.2,
+                  label=f"$D = {format_value(self.dimension, self.dimension_error)}$")
+        style.label_axes(ax, "box_size", "boxes")
+        log_ticks(ax)
+        legend(ax, theme)
         return ax

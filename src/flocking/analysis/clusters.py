@@ -3,11 +3,20 @@
 Union-find over a numba cell list, O(N) per frame. Labels are numbered by decreasing
 size (0 is the largest cluster; ties by the lowest particle index).
 
+Over the frames of the window, with ``n_s`` the number of clusters of size ``s`` summed
+over all of them: the number-average size ``sum s n_s / sum n_s`` (the mean size of a
+cluster) and the weight-average size ``sum s^2 n_s / sum s n_s`` (the mean size of the
+cluster a particle belongs to, the one the percolation and flocking literature calls the
+mean cluster size); the largest cluster's fraction of the particles, both in the last
+frame and averaged over the frames.
+
 >>> import numpy as np
 >>> pts = np.array([[0.2, 5.0], [9.8, 5.0], [5.0, 5.0], [5.5, 5.0], [2.0, 8.0]])
 >>> cl = Clusters(radius=1.0).compute((10.0, pts))   # 0 and 1 touch across x = 0
 >>> cl.cluster_idx.tolist(), cl.sizes.tolist()
 ([0, 0, 1, 1, 2], [2, 2, 1])
+>>> cl.number_average_size, cl.weight_average_size    # 5 / 3 and (4 + 4 + 1) / 5
+(1.6666666666666667, 1.8)
 """
 
 from __future__ import annotations
@@ -15,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _cells, _input
-from ._base import Analysis, positive, result
+from ._base import Analysis, format_value, legend, log_ticks, positive, result
 
 
 def labels(positions, box, radius: float) -> np.ndarray:
@@ -35,11 +44,12 @@ class Clusters(Analysis):
     radius: link distance (strictly closer). Default: the trajectory's interaction radius
         when it stores one, else 1.
     start, frames: the window. Labels are those of the last frame; the size distribution
-        and the largest fraction are over all frames of the window.
+        and the averages are over all frames of the window.
     """
 
-    _keys = ("num_clusters", "largest_fraction", "largest_fraction_mean", "mean_size", "size_values",
-             "size_counts", "radius_used", "num_frames")
+    _keys = ("num_clusters", "largest_fraction", "largest_fraction_mean", "number_average_size",
+             "weight_average_size", "size_values", "size_counts_total", "size_counts_per_frame", "radius_used",
+             "num_frames")
 
     def __init__(self, radius=None, start=None, frames=None):
         self.radius = positive("radius", radius, allow_none=True)
@@ -53,10 +63,12 @@ class Clusters(Analysis):
     sizes = result("sizes", "Cluster sizes in the last frame, largest first.")
     num_clusters = result("num_clusters", "Number of clusters in the last frame.")
     largest_fraction = result("largest_fraction", "Largest cluster / N in the last frame.")
-    largest_fraction_mean = result("largest_fraction_mean", "Largest cluster / N averaged over frames.")
-    mean_size = result("mean_size", "Number-weighted mean cluster size over frames.")
+    largest_fraction_mean = result("largest_fraction_mean", "Largest cluster / N averaged over the frames.")
+    number_average_size = result("number_average_size", "sum s n_s / sum n_s over the frames.")
+    weight_average_size = result("weight_average_size", "sum s^2 n_s / sum s n_s over the frames.")
     size_values = result("size_values", "Distinct cluster sizes s over all frames.")
-    size_counts = result("size_counts", "Number of clusters of each size, summed over frames.")
+    size_counts_total = result("size_counts_total", "n_s: clusters of each size, summed over the frames.")
+    size_counts_per_frame = result("size_counts_per_frame", "n_s / frames: clusters of each size per frame.")
     radius_used = result("radius_used", "The link radius used.")
     num_frames = result("num_frames", "Number of frames.")
 
@@ -73,17 +85,29 @@ class Clusters(Analysis):
             all_sizes.append(sizes)
             fractions.append(sizes[0] / f.n)
         values, counts = np.unique(np.concatenate(all_sizes), return_counts=True)
+        mass = (values * counts).sum()  # particles, summed over the frames
         self._store(cluster_idx=lab, sizes=sizes, num_clusters=len(sizes), largest_fraction=float(fractions[-1]),
                     largest_fraction_mean=float(np.mean(fractions)),
-                    mean_size=float((values * counts).sum() / counts.sum()), size_values=values,
-                    size_counts=counts, radius_used=float(radius), num_frames=len(frames))
+                    number_average_size=float(mass / counts.sum()),
+                    weight_average_size=float((values.astype(float) ** 2 * counts).sum() / mass),
+                    size_values=values, size_counts_total=counts, size_counts_per_frame=counts / len(frames),
+                    radius_used=float(radius), num_frames=len(frames))
         return self
 
-    def plot(self, ax=None):
-        """Number of clusters of each size, log-log."""
-        ax = self._axis(ax)
-        ax.loglog(self.size_values, self.size_counts / self.num_frames, "o", ms=4)
-        ax.set_xlabel("cluster size s")
-        ax.set_ylabel("clusters per frame")
-        ax.set_title(f"largest fraction {self.largest_fraction_mean:.3f}")
+    def plot(self, ax=None, theme=None):
+        """Clusters of each size per frame, log-log, with the two average sizes marked."""
+        from ..viz import style
+
+        ax, theme = self._axes(ax, theme)
+        colours = style.palette(theme)
+        ax.loglog(self.size_values, self.size_counts_per_frame, "o", ms=3.5, color=colours[0],
+                  label=f"mean of {self.num_frames} frame{'s' * (self.num_frames > 1)}")
+        ax.axvline(self.number_average_size, color=colours[1], ls="--", lw=1,
+                   label=rf"$\langle s\rangle_n = {format_value(self.number_average_size)}$")
+        ax.axvline(self.weight_average_size, color=colours[2], ls=":", lw=1.2,
+                   label=rf"$\langle s\rangle_w = {format_value(self.weight_average_size)}$")
+        ax.plot([], [], " ", color=colours[-1], label=f"largest: {self.largest_fraction_mean:.3f} $N$")
+        style.label_axes(ax, "cluster_size", r"clusters per frame $n_s$")
+        log_ticks(ax)
+        legend(ax, theme)
         return ax

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..model import ParameterError
 from . import _cells, _input
-from ._base import Analysis, positive, result
+from ._base import Analysis, legend, positive, result
 
 METHODS = ("auto", "cells", "grid")
 
@@ -153,15 +153,17 @@ class VelocityCorrelation(Analysis):
                     du_squared=du2, method_used=method, num_frames=len(frames))
         return self
 
-    def plot(self, ax=None):
+    def plot(self, ax=None, theme=None):
         """``C(r)`` with its first zero marked."""
-        ax = self._axis(ax)
-        ax.plot(self.r, self.correlation, "-", lw=1.2)
-        ax.axhline(0, color="gray", lw=0.6)
+        from ..viz import style
+
+        ax, theme = self._axes(ax, theme)
+        colours = style.palette(theme)
+        ax.plot(self.r, self.correlation, "-", lw=1.2, color=colours[0], label="$C(r)$")
+        ax.axhline(0, color=colours[-1], lw=0.6)
         if math.isfinite(self.correlation_length):
-            ax.axvline(self.correlation_length, color="C1", ls="--",
-                       label=f"first zero {self.correlation_length:.3g}")
-            ax.legend(loc="best")
-        ax.set_xlabel("r")
-        ax.set_ylabel("C(r)")
+            ax.axvline(self.correlation_length, color=colours[1], ls="--", lw=1,
+                       label=rf"first zero $r_0 = {self.correlation_length:.3g}$")
+        style.label_axes(ax, "r", "corr")
+        legend(ax, theme)
         return ax

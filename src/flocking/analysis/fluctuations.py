@@ -23,7 +23,7 @@ import numpy as np
 
 from ..model import ParameterError
 from . import _input
-from ._base import Analysis, fit_line, result
+from ._base import Analysis, fit_line, format_value, legend, log_ticks, result
 
 
 def default_sizes(box: np.ndarray, n: int, count: int = 24) -> np.ndarray:
@@ -135,17 +135,25 @@ class NumberFluctuations(Analysis):
             return float("nan"), float("nan"), float("nan")
         return fit_line(np.log(mean[mask]), np.log(std[mask]), sigma[mask])
 
-    def plot(self, ax=None):
-        """``dn`` against ``<n>`` on log-log axes with the fitted power law."""
-        ax = self._axis(ax)
-        ax.loglog(self.mean, self.std, "o", ms=4, label="data")
+    def plot(self, ax=None, theme=None):
+        """``dn`` against ``<n>`` on log-log axes with the fitted power law (over the fitted
+        sizes, filled markers) and the ideal gas' ``<n>^(1/2)`` for reference."""
+        from ..viz import style
+
+        ax, theme = self._axes(ax, theme)
+        colours = style.palette(theme)
+        if not self.fitted.all():
+            ax.loglog(self.mean[~self.fitted], self.std[~self.fitted], "o", ms=3.5, mfc="none", color=colours[0],
+                      label="not fitted")
+        ax.loglog(self.mean[self.fitted], self.std[self.fitted], "o", ms=3.5, color=colours[0], label="fitted")
         x = self.mean[self.fitted]
         if len(x) >= 2:
-            ax.loglog(x, np.exp(self.intercept) * x**self.alpha, "-",
-                      label=f"alpha = {self.alpha:.3f} ± {self.alpha_error:.3f}")
-        ax.loglog(self.mean, np.sqrt(self.mean) * (self.std[0] / np.sqrt(self.mean[0])), ":", color="gray",
-                  label="<n>^1/2")
-        ax.set_xlabel("<n>")
-        ax.set_ylabel("dn")
-        ax.legend(loc="best")
+            ax.loglog(x, np.exp(self.intercept) * x**self.alpha, "-", color=colours[1], lw=1.2,
+                      label=rf"$\alpha = {format_value(self.alpha, self.alpha_error)}$")
+        ref = self.mean[0]
+        ax.loglog(self.mean, np.sqrt(self.mean / ref) * self.std[0], ":", color=colours[-1], lw=1,
+                  label=r"$\propto\langle n\rangle^{1/2}$")
+        style.label_axes(ax, "mean_count", "count_std")
+        log_ticks(ax)
+        legend(ax, theme)
         return ax

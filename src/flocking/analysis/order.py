@@ -9,6 +9,15 @@ by more than four errors (``sqrt(2)`` times the smaller error of a half's mean: 
 transient inflates the error of its own half) triggers a warning: it has likely not
 equilibrated.
 
+``start="auto"`` finds the transient (Chodera's rule, J. Chem. Theory Comput. 12, 1799
+(2016)): of the first steps ``t0`` in 0, T/256, ..., T/2, the one that leaves the most
+effectively independent samples ``(T - t0) / (2 tau(t0))``. A steady state keeps almost
+everything; a transient, which inflates ``tau`` of every window that holds it, is cut.
+The rule weighs bias against variance: what it keeps of the transient's tail lies within
+the error bar it inflates.
+If the window found still drifts (or the series is under 64 values), the second half of
+the run is kept instead; ``window_rule`` says which.
+
 >>> import numpy as np
 >>> rng = np.random.default_rng(0)
 >>> op = PolarOrder().compute(0.5 + 0.01 * rng.standard_normal(4000), n=1000)
@@ -29,7 +38,7 @@ import numpy as np
 from ..model import ParameterError
 from ..observables import polar_moments
 from . import _input
-from ._base import Analysis, result
+from ._base import Analysis, format_value, legend, positive, result
 
 
 def autocorrelation(x: np.ndarray) -> np.ndarray:
@@ -77,6 +86,47 @@ def _jackknife(values: np.ndarray, block: int, n: int) -> dict[str, float]:
     return {k: float(math.sqrt((nb - 1) / nb * np.sum((e - e.mean()) ** 2))) for k, e in est.items()}
 
 
+def transient_end(x: np.ndarray, candidates: int = 128, points: int = 4096) -> int:
+    """Index where the transient of ``x`` ends: Chodera's rule over ``candidates`` first
+    values up to the middle (see the module). A series longer than ``points`` is first
+    averaged in blocks to at most that many values, which keeps a transient and scales
+    ``tau`` alike for every candidate.
+
+    >>> x = np.r_[np.linspace(0.0, 0.8, 300), 0.8 + 0.01 * np.random.default_rng(5).standard_normal(2700)]
+    >>> 300 <= transient_end(x) <= 320
+    True
+    """
+    block = max(1, -(-len(x) // points))
+    y = np.asarray(x, float)[: len(x) // block * block].reshape(-1, block).mean(axis=1)
+    t = len(y)
+    best, best_eff = 0, -1.0
+    for t0 in np.unique(np.linspace(0, t // 2, candidates + 1).astype(int)):
+        eff = (t - t0) / (2 * integrated_time(y[t0:]))
+        if eff > best_eff:
+            best, best_eff = int(t0), eff
+    return best * block
+
+
+def _drift(x: np.ndarray) -> float:
+    """(second-half mean - first-half mean) / (sqrt(2) x the smaller error of a half)."""
+    half = len(x) // 2
+    if half < 4:
+        return 0.0
+    (e1, _), (e2, _) = _mean_error(x[:half]), _mean_error(x[half:])
+    diff = x[half:].mean() - x[:half].mean()
+    scale = math.sqrt(2.0) * min(e1, e2)  # a transient inflates its own half's error
+    return diff / scale if scale > 0 else (0.0 if diff == 0 else math.copysign(math.inf, diff))
+
+
+def _auto_window(x: np.ndarray) -> tuple[int, str]:
+    """``(first index, rule)`` of the steady window of ``x`` (at least two values)."""
+    if len(x) >= 64:
+        first = transient_end(x)
+        if abs(_drift(x[first:])) <= 4.0:
+            return first, "detected"
+    return min(len(x) // 2, len(x) - 2), "half the run"
+
+
 def _mean_error(x: np.ndarray) -> tuple[float, float]:
     tau = integrated_time(x)
     var = float(np.var(x))
@@ -102,8 +152,11 @@ class PolarOrder(Analysis):
     Parameters
     ----------
     start:
-        The window: the first step kept (``int``), or the fraction of the series to
-        discard when ``0 < start < 1``. Default: keep everything.
+        The window: the first step kept (``int``), the fraction of the series to discard
+        when ``0 < start < 1``, or ``"auto"``: the end of the transient, detected (see
+        the module). Default: keep everything.
+    dt:
+        Time step of the data (default: the run's stored ``dt``, else 1).
 
     ``compute(system, n=None)`` accepts a run folder (its ``observables.csv``: every
     step), an ``observables.csv`` path, a 1D array of values (``n`` is then needed for
@@ -111,20 +164,25 @@ class PolarOrder(Analysis):
     GSD path, frames: one value per frame).
     """
 
-    _keys = ("n", "samples", "mean", "mean_error", "phi2", "phi2_error", "phi4", "phi4_error",
-             "susceptibility", "susceptibility_error", "binder", "binder_error", "tau", "drift",
-             "equilibrated")
+    _keys = ("n", "samples", "window_start", "window_rule", "mean", "mean_error", "phi2", "phi2_error", "phi4",
+             "phi4_error", "susceptibility", "susceptibility_error", "binder", "binder_error", "tau", "tau_time",
+             "drift", "equilibrated", "suggested_start", "dt_used")
 
-    def __init__(self, start=None):
-        _input.window_start(start, [0], 1)  # validate
+    def __init__(self, start=None, dt=None):
+        if start != "auto":
+            _input.window_start(start, [0], 1)  # validate
         self.start = start
+        self.dt = positive("dt", dt, allow_none=True)
 
     def parameters(self) -> dict:
-        return {"start": self.start}
+        return {"start": self.start, "dt": self.dt}
 
     steps = result("steps", "Step of each value of the whole series.")
+    times = result("times", "Time of each value: steps * dt.")
     series = result("series", "The whole time series phi(t).")
     window = result("window", "Boolean mask of the values in the window.")
+    window_start = result("window_start", "First step of the window.")
+    window_rule = result("window_rule", "How the window was chosen: 'all', 'given', 'detected' or 'half the run'.")
     n = result("n", "Number of particles (None when unknown).")
     samples = result("samples", "Number of values in the window.")
     mean = result("mean", "<phi> over the window.")
@@ -138,21 +196,30 @@ class PolarOrder(Analysis):
     binder = result("binder", "Binder cumulant G = 1 - <phi^4> / (3 <phi^2>^2).")
     binder_error = result("binder_error", "Error of G (block jackknife).")
     tau = result("tau", "Integrated autocorrelation time of phi in the window, in samples.")
+    tau_time = result("tau_time", "tau in the model's time: tau x the median step between samples x dt.")
     drift = result("drift", "(second-half mean - first-half mean) / (sqrt(2) x the smaller half error).")
     equilibrated = result("equilibrated", "False when |drift| > 4.")
+    suggested_start = result("suggested_start", "A later first step to try when not equilibrated (else None).")
+    dt_used = result("dt_used", "Time step used for times and tau_time.")
 
     def compute(self, system, n: int | None = None) -> PolarOrder:
-        steps, phi, n = self._series(system, n)
-        if phi.size == 0:
-            raise ParameterError("system: holds no polar order value")
+        steps, phi, n, model = self._series(system, n)
+        if phi.size < 2:
+            raise ParameterError(f"system: holds {phi.size} polar order value{'' if phi.size == 1 else 's'}; "
+                                 "statistics need at least 2 (a run of at least one step)")
         if not np.all(np.isfinite(phi)):
             raise ParameterError("system: the polar order series holds non-finite values")
-        first = _input.window_start(self.start, steps, len(phi))
+        if self.start == "auto":
+            first, rule = _auto_window(phi)
+        else:
+            first = _input.window_start(self.start, steps, len(phi))
+            rule = "all" if self.start is None else "given"
         window = np.zeros(len(phi), bool)
         window[first:] = True
         x = phi[window]
         if x.size < 2:
-            raise ParameterError(f"start: leaves {x.size} value(s) in the window; at least 2 are needed")
+            raise ParameterError(f"start: leaves {x.size} value(s) in the window; at least 2 are needed "
+                                 f"(the series ends at step {int(steps[-1])})")
         moments = polar_moments(x, 1 if n is None else n)
         if n is None:
             moments["susceptibility"] = float("nan")
@@ -161,28 +228,27 @@ class PolarOrder(Analysis):
         errors = _jackknife(x, block, 1 if n is None else n)
         if n is None:
             errors["susceptibility"] = float("nan")
-        half = len(x) // 2
-        drift = 0.0
-        if half >= 4:
-            (e1, _), (e2, _) = _mean_error(x[:half]), _mean_error(x[half:])
-            diff = x[half:].mean() - x[:half].mean()
-            scale = math.sqrt(2.0) * min(e1, e2)  # a transient inflates its own half's error
-            drift = diff / scale if scale > 0 else (0.0 if diff == 0 else math.copysign(math.inf, diff))
+        drift = _drift(x)
         equilibrated = abs(drift) <= 4.0
+        suggested = None
         if not equilibrated:
+            suggested = int(steps[first + _auto_window(x)[0]])
             warnings.warn(f"PolarOrder: the window does not look equilibrated: the mean of its second half "
-                          f"differs from the first by {abs(drift):.1f} errors; discard more (start=...)",
+                          f"differs from the first by {abs(drift):.1f} errors; discard more (start={suggested})",
                           RuntimeWarning, stacklevel=2)
-        self._store(steps=steps, series=phi, window=window, n=n, samples=int(x.size),
-                    mean=moments["mean"], mean_error=mean_error, phi2=moments["phi2"],
-                    phi2_error=errors["phi2"], phi4=moments["phi4"], phi4_error=errors["phi4"],
+        dt = _input.time_step(self.dt, model)
+        spacing = float(np.median(np.diff(steps[window])))
+        self._store(steps=steps, times=steps * dt, series=phi, window=window, window_start=int(steps[first]),
+                    window_rule=rule, n=n, samples=int(x.size), mean=moments["mean"], mean_error=mean_error,
+                    phi2=moments["phi2"], phi2_error=errors["phi2"], phi4=moments["phi4"], phi4_error=errors["phi4"],
                     susceptibility=moments["susceptibility"], susceptibility_error=errors["susceptibility"],
-                    binder=moments["binder"], binder_error=errors["binder"], tau=tau, drift=float(drift),
-                    equilibrated=bool(equilibrated))
+                    binder=moments["binder"], binder_error=errors["binder"], tau=tau, tau_time=tau * spacing * dt,
+                    drift=float(drift), equilibrated=bool(equilibrated), suggested_start=suggested, dt_used=dt)
         return self
 
     @staticmethod
     def _series(system, n):
+        """``(steps, phi, n, model)`` of any accepted system."""
         if n is not None and (isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1):
             raise ParameterError(f"n: must be a whole number >= 1 (got {n!r})")
         if isinstance(system, (str, os.PathLike)):
@@ -194,30 +260,33 @@ class PolarOrder(Analysis):
                 if not os.path.exists(csv_path):
                     raise ParameterError(f"system: no such file {csv_path!r}")
                 steps, phi = read_observables(csv_path)
-                if n is None:
-                    model = _input.model_of(path) if os.path.isdir(path) else None
-                    n = None if model is None else model.n
-                return steps, phi, n
+                model = _input.model_of(path) if os.path.isdir(path) else None
+                if n is None and model is not None:
+                    n = model.n
+                return steps, phi, n, model
         if isinstance(system, (np.ndarray, list)) and np.ndim(system) == 1 and len(system) and \
                 isinstance(np.asarray(system).flat[0], numbers.Real):
             phi = np.asarray(system, dtype=float)
-            return np.arange(len(phi)), phi, n
+            return np.arange(len(phi)), phi, n, None
         frames = _input.as_frames(system)
         steps, phi = frames.steps, []
         for f in frames:
             u = f.require_headings("PolarOrder")
             phi.append(np.linalg.norm(u.sum(axis=0)) / f.n)
             n = f.n if n is None else n
-        return np.asarray(steps), np.asarray(phi), n
+        return np.asarray(steps), np.asarray(phi), n, frames.model
 
-    def plot(self, ax=None):
-        """The series, the window shaded, and the mean with its error."""
-        ax = self._axis(ax)
-        ax.plot(self.steps, self.series, lw=0.8, color="C0")
-        w = self.steps[self.window]
-        ax.axvspan(w[0], w[-1], color="C0", alpha=0.08, label="window")
-        ax.axhline(self.mean, color="C1", label=f"<phi> = {self.mean:.4f} ± {self.mean_error:.1g}")
-        ax.set_xlabel("step")
-        ax.set_ylabel("polar order phi")
-        ax.legend(loc="best")
+    def plot(self, ax=None, theme=None):
+        """The series against time, the window shaded, and the mean with its error."""
+        from ..viz import style
+
+        ax, theme = self._axes(ax, theme)
+        colours = style.palette(theme)
+        ax.plot(self.times, self.series, lw=0.8, color=colours[0], label=r"$\varphi(t)$")
+        w = self.times[self.window]
+        ax.axvspan(w[0], w[-1], color=colours[0], alpha=0.12, lw=0, label=f"window ({self.window_rule})")
+        ax.axhline(self.mean, color=colours[1], lw=1.2,
+                   label=rf"$\langle\varphi\rangle = {format_value(self.mean, self.mean_error)}$")
+        style.label_axes(ax, "time", "phi")
+        legend(ax, theme)
         return ax

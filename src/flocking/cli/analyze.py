@@ -1,10 +1,17 @@
-"""``flocking analyze RUN_DIR``: every measurement of a run, as JSON, CSV and PNG files."""
+"""``flocking analyze RUN_DIR``: every measurement of a run, as JSON, CSV and figure files.
+
+The window of steps analysed is the same for every quantity: the end of the transient
+found in the polar order (``PolarOrder(start="auto")``), half the run when none can be
+found, or ``--start``. Times are in the model's units, ``t = step * dt``.
+"""
 
 from __future__ import annotations
 
 import csv
 import json
+import math
 import os
+import warnings
 
 import click
 
@@ -13,16 +20,23 @@ from ..model import ParameterError
 
 QUANTITIES = ("polar", "fluctuations", "correlation", "profile", "clusters", "boxcount", "msd")
 
-#: quantity -> (CSV/PNG file stem, CSV columns as (header, attribute))
+#: quantity -> (file stem, figure title, CSV columns as (header, attribute)); a header
+#: ``None`` is named for the profile's axis
 OUTPUTS = {
-    "polar": ("polar_order_window", [("step", "steps"), ("polar_order", "series"), ("in_window", "window")]),
-    "fluctuations": ("number_fluctuations", [("side", "sizes"), ("mean_n", "mean"), ("dn", "std"),
-                                             ("fitted", "fitted")]),
-    "correlation": ("velocity_correlation", [("r", "r"), ("C", "correlation"), ("pairs", "pairs")]),
-    "profile": ("density_profile", [("x", "x"), ("density", "density")]),
-    "clusters": ("cluster_sizes", [("size", "size_values"), ("count", "size_counts")]),
-    "boxcount": ("box_counting", [("eps", "scales"), ("boxes", "counts"), ("fitted", "fitted")]),
-    "msd": ("msd", [("lag", "lags"), ("msd", "msd"), ("origins", "origins")]),
+    "polar": ("polar_order_window", "Polar order",
+              [("step", "steps"), ("time", "times"), ("polar_order", "series"), ("in_window", "window")]),
+    "fluctuations": ("number_fluctuations", "Number fluctuations",
+                     [("side", "sizes"), ("mean_n", "mean"), ("dn", "std"), ("fitted", "fitted")]),
+    "correlation": ("velocity_correlation", "Velocity correlation",
+                    [("r", "r"), ("C", "correlation"), ("pairs", "pairs")]),
+    "profile": ("density_profile", "Density profile, last frame", [(None, "x"), ("density", "density")]),
+    "clusters": ("cluster_sizes", "Cluster sizes",
+                 [("size", "size_values"), ("clusters_all_frames", "size_counts_total"),
+                  ("clusters_per_frame", "size_counts_per_frame")]),
+    "boxcount": ("box_counting", "Box counting, last frame",
+                 [("eps", "scales"), ("boxes", "counts"), ("fitted", "fitted")]),
+    "msd": ("msd", "Mean square displacement",
+            [("lag_steps", "lag_steps"), ("lag_time", "lag_times"), ("msd", "msd"), ("origins", "origins")]),
 }
 
 
@@ -37,16 +51,19 @@ def parse_only(text: str | None) -> list[str]:
 
 
 def parse_start(text: str | None):
-    if text is None:
-        return None
+    """``"auto"``, a whole step, or a fraction in (0, 1)."""
+    if text is None or text == "auto":
+        return "auto"
     try:
         value = float(text)
     except ValueError:
-        raise ParameterError(f"start: must be a step >= 0 or a fraction in (0, 1) (got {text!r})") from None
-    return int(value) if value >= 1 and value == int(value) else value
+        raise ParameterError(f"start: must be auto, a step >= 0 or a fraction in (0, 1) (got {text!r})") from None
+    if not math.isfinite(value) or value < 0 or (value >= 1 and value != int(value)):
+        raise ParameterError(f"start: must be auto, a whole step >= 0 or a fraction in (0, 1) (got {text!r})")
+    return int(value) if value >= 1 or value == 0 else value
 
 
-def build(name: str, model, start, frames, radius, r_max, dr, method):
+def build(name: str, model, start, frames, options: dict):
     """The analysis object for ``name`` with the options of the command."""
     from .. import analysis as fa
 
@@ -55,114 +72,219 @@ def build(name: str, model, start, frames, radius, r_max, dr, method):
     if name == "fluctuations":
         return fa.NumberFluctuations(start=start, frames=frames)
     if name == "correlation":
-        return fa.VelocityCorrelation(r_max=r_max, dr=dr, method=method, start=start, frames=frames)
+        return fa.VelocityCorrelation(r_max=options["r_max"], dr=options["dr"], method=options["method"],
+                                      start=start, frames=frames)
     if name == "profile":
         return fa.DensityProfile(start=start, frames=frames)
     if name == "clusters":
-        return fa.Clusters(radius=radius if radius is not None else (model.radius if model else None),
-                           start=start, frames=frames)
+        radius = options["radius"] if options["radius"] is not None else (model.radius if model else None)
+        return fa.Clusters(radius=radius, start=start, frames=frames)
     if name == "boxcount":
         return fa.BoxCounting(start=start)
-    return fa.MeanSquareDisplacement(start=start, frames=frames)
+    return fa.MeanSquareDisplacement(max_lag=options["max_lag"], start=start, frames=frames)
 
 
 @click.command()
 @click.argument("run_dir", type=click.Path())
 @click.option("--only", default=None, help=f"Comma-separated subset of: {', '.join(QUANTITIES)}. [default: all]")
-@click.option("--start", default=None,
-              help="Window: first step kept, or a fraction in (0, 1) of the run to discard. [default: 0]")
+@click.option("--start", default="auto", show_default=True,
+              help="First step of the window, a fraction in (0, 1) of the run to discard, or auto: the end of "
+                   "the transient detected in the polar order (half the run when none is found).")
 @click.option("--frames", type=click.INT, default=None,
               help="Use at most the last N frames of the window (the polar order uses every step).")
+@click.option("--max-lag", type=click.INT, default=None, help="Largest MSD lag, in steps. [default: all]")
 @click.option("--radius", type=click.FLOAT, default=None, help="Cluster link radius. [default: the run's radius]")
 @click.option("--r-max", type=click.FLOAT, default=None, help="Largest distance of C(r). [default: L/2]")
 @click.option("--dr", type=click.FLOAT, default=None, help="Bin width of C(r). [default: min(0.5, r_max/20)]")
-@click.option("--method", type=click.Choice(["auto", "cells", "grid"]), default="auto",
+@click.option("--method", default="auto",
               help="C(r): exact cell list, FFT grid, or auto. [default: auto]")
 @click.option("--out", default=None, help="Output folder. [default: RUN_DIR]")
+@click.option("--theme", default="dark", show_default=True, help="Figures: dark or light.")
+@click.option("--size", "size", default="column", show_default=True,
+              help="Figures: column (3.4 x 2.6 in), page (7 x 3.2 in) or slide (8 x 4.5 in).")
+@click.option("--format", "fmt", default="png", show_default=True, help="Figures: png, svg or pdf.")
+@click.option("--dpi", type=click.FLOAT, default=None, help="Figures: pixels per inch of PNGs. [default: 200]")
 @click.option("--no-plots", is_flag=True, help="Write JSON and CSV only.")
 @click.option("--quiet", "-q", is_flag=True, help="No summary on stderr.")
-def analyze(run_dir, only, start, frames, radius, r_max, dr, method, out, no_plots, quiet):
+def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, out, theme, size, fmt, dpi,
+            no_plots, quiet):
     """Measure a run: polar order, number fluctuations, velocity correlation, density
     profile, clusters, box-counting dimension and MSD.
 
     RUN_DIR is a folder written by `flocking run` (or a GSD file). Writes analysis.json,
-    one CSV per curve and one PNG per quantity into RUN_DIR (or --out).
+    one CSV per curve and one figure per quantity into RUN_DIR (or --out). The transient
+    is left out: the window starts where the polar order has settled (or at --start).
 
     \b
     Examples:
       flocking analyze runs/run-0001
       flocking analyze runs/run-0001 --only polar,fluctuations --start 0.5
-      flocking analyze traj.gsd --frames 20 --r-max 20 --out results
+      flocking analyze traj.gsd --frames 20 --r-max 20 --out results --theme light --format pdf
     """
-    import warnings
-
     from ..analysis import _input
+    from ..viz import style
+    from ..viz.colors import get_theme
 
     names = parse_only(only)
     start = parse_start(start)
-    if frames is not None and frames < 1:
-        raise ParameterError(f"frames: must be a whole number >= 1 (got {frames})")
+    for option, value in (("frames", frames), ("max_lag", max_lag)):
+        if value is not None and value < 1:
+            raise ParameterError(f"{option}: must be a whole number >= 1 (got {value})")
+    get_theme(theme)
+    if size not in style.SIZES:
+        raise ParameterError(f"size: must be one of {', '.join(style.SIZES)} (got {size!r})")
+    if fmt not in style.FORMATS:
+        raise ParameterError(f"format: must be one of {', '.join(style.FORMATS)} (got {fmt!r})")
+    if dpi is not None and not (math.isfinite(dpi) and 10 <= dpi <= 2000):
+        raise ParameterError(f"dpi: must be in [10, 2000] (got {dpi})")
     if not os.path.exists(run_dir):
         raise ParameterError(f"RUN_DIR {run_dir!r}: no such folder or file")
     folder = run_dir if os.path.isdir(run_dir) else os.path.dirname(os.path.abspath(run_dir))
     gsd_path = _input.trajectory_path(run_dir) if (not os.path.isdir(run_dir) or os.path.exists(
         os.path.join(run_dir, "trajectory.gsd"))) else None
     obs = os.path.join(folder, "observables.csv") if os.path.isdir(run_dir) else None
-    if gsd_path is None and not (obs and os.path.exists(obs) and names == ["polar"]):
+    obs = obs if obs and os.path.exists(obs) else None
+    if gsd_path is None and not (obs and names == ["polar"]):
         raise ParameterError(f"RUN_DIR {run_dir!r}: holds no trajectory.gsd")
     out = out or folder
     if os.path.exists(out) and not os.path.isdir(out):
         raise ParameterError(f"out: {out!r} exists and is not a folder")
     model = _input.model_of(gsd_path) if gsd_path else None
-    objects = {name: build(name, model, start, frames, radius, r_max, dr, method) for name in names}
+    options = {"radius": radius, "r_max": r_max, "dr": dr, "method": method, "max_lag": max_lag}
+    for name in names:  # every option checked before anything is read or written
+        build(name, model, None, frames, options)
     try:
         system = _input.as_frames(gsd_path) if gsd_path else None
     except ParameterError as err:
         raise ParameterError(f"RUN_DIR {run_dir!r}: {str(err).partition(': ')[2]}") from None
-    results, notes = {}, {}
+    polar_source = run_dir if obs else system
+    window = choose_window(start, polar_source, system, model)
+    objects = {name: build(name, model, "auto" if name == "polar" and start == "auto" else window["start"], frames,
+                           options) for name in names}
+    results, notes, skipped = {}, {}, {}
     for name, obj in objects.items():
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
                 if name == "polar":
-                    source = run_dir if obs and os.path.exists(obs) else system
-                    obj.compute(source, n=model.n if model else None)
+                    obj.compute(polar_source, n=model.n if model else None)
                 else:
                     obj.compute(system)
             except ParameterError as err:
-                if name in ("correlation", "polar") and "needs velocities" in str(err):
-                    notes[name] = str(err)
-                    continue
                 key, _, rest = str(err).partition(": ")
-                if key == "system":  # the input itself: name it as the user typed it
-                    raise ParameterError(f"RUN_DIR {run_dir!r}: {rest}") from None
-                raise
-        if caught:
-            notes[name] = "; ".join(str(w.message) for w in caught)
+                if key != "system":  # an option's value: the user's to change
+                    raise
+                notes[name] = f"skipped: {rest}"
+                skipped[name] = rest
+                continue
+        messages = [hint(name, obj, str(w.message)) for w in caught]
+        if any(messages):
+            notes[name] = "; ".join(m for m in messages if m)
         results[name] = obj
+    if not results:
+        raise ParameterError(f"RUN_DIR {run_dir!r}: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
     os.makedirs(out, exist_ok=True)
     summary = {"run": os.path.abspath(run_dir), "model": model.to_dict() if model else None,
-               "start": start, "frames": frames, "notes": notes}
+               "window": {"start_step": window["step"], "rule": window["rule"]}, "frames": frames,
+               "time_unit": "t = step * dt", "notes": notes}
     summary.update({name: obj.to_dict() for name, obj in results.items()})
+    details = caption(model, system, window)
     for name, obj in results.items():
-        stem, columns = OUTPUTS[name]
+        stem, heading, columns = OUTPUTS[name]
         write_csv(os.path.join(out, stem + ".csv"), obj, columns)
         if not no_plots:
-            plot(obj, os.path.join(out, stem + ".png"))
+            fig, ax = style.figure(size, theme=theme)
+            obj.plot(ax)
+            style.title(fig, heading, details)
+            style.save(fig, os.path.join(out, f"{stem}.{fmt}"), dpi=dpi)
     write_json(os.path.join(out, "analysis.json"), summary)
     if not quiet:
-        for line in summary_lines(results):
-            click.echo(line, err=True)
+        for line in [window_line(window)] + summary_lines(results):
+            click.echo(f"flocking analyze: {line}", err=True)
         for name, note in notes.items():
             click.echo(f"flocking analyze: {name}: {note}", err=True)
         click.echo(f"flocking analyze: wrote {os.path.join(out, 'analysis.json')}", err=True)
 
 
+def choose_window(start, polar_source, frames, model) -> dict:
+    """``{"start": what each quantity takes, "step": first step, "rule": how}``."""
+    from ..analysis import PolarOrder
+
+    if start != "auto":
+        return {"start": start, "step": start if isinstance(start, int) else None, "rule": "--start"}
+    last = int(frames.steps[-1]) if frames is not None else None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            polar = PolarOrder(start="auto").compute(polar_source, n=model.n if model else None)
+    except ParameterError:  # no velocities, or a single value: there is no transient to find
+        polar = None
+    if polar is None:
+        if frames is not None and len(frames) >= 2:
+            step = int(frames.steps[len(frames) // 2])
+            return {"start": step, "step": step, "rule": "half the run (no polar order to find the transient in)"}
+        return {"start": None, "step": int(frames.steps[0]) if frames is not None else 0,
+                "rule": "the whole run (a single frame)"}
+    step = polar.window_start if last is None else min(polar.window_start, last)
+    if polar.window_rule != "detected":
+        rule = "half the run (no steady window found)"
+    else:
+        rule = "transient detected" if step > polar.steps[0] else "no transient found"
+    return {"start": step, "step": step, "rule": rule}
+
+
+def window_text(window: dict) -> str:
+    """Where the window starts, and why."""
+    if window["step"] is None:
+        return f"the first {window['start']:.0%} of the run left out (--start)"
+    return f"from step {window['step']} ({window['rule']})"
+
+
+def window_line(window: dict) -> str:
+    if window["rule"] == "--start":
+        return f"window: {window_text(window)}"
+    return f"window: {window_text(window)[:-1]}; --start STEP to choose)"
+
+
+def hint(name: str, obj, message: str) -> str:
+    """A warning of a quantity in the command's terms (``""`` to leave it out)."""
+    if name == "polar" and obj.computed and not obj.equilibrated:
+        return (f"the window from step {obj.window_start} does not look equilibrated (its halves differ by "
+                f"{abs(obj.drift):.1f} errors): discard more with --start {obj.suggested_start}")
+    if name == "boxcount" and "two box sizes" in message:
+        return "the dimension comes from two box sizes only (more particles give more): no error estimate"
+    return message
+
+
+def caption(model, frames, window) -> str:
+    """The parameters that matter, joined by `` · ``, for the figures' captions."""
+    parts = []
+    if model is not None:
+        box = model.box
+        side = f"{box[0]:.4g}" if len(set(box)) == 1 else " × ".join(f"{b:.4g}" for b in box)
+        reach = f"R = {model.radius:g}" if model.neighbours == "metric" else f"k = {model.k} (topological)"
+        parts = [f"{model.dim}D", f"N = {model.n}", f"L = {side}", f"ρ = {model.n / math.prod(box):.3g}",
+                 f"v₀ = {model.speed:g}" + (" (uniform)" if model.speeds == "uniform" else ""), reach,
+                 f"η = {model.noise:.3g} ({model.noise_type})", f"Δt = {model.dt:g}"]
+        if model.alignment != 1:
+            parts.append(f"ε = {model.alignment:g}")
+        if model.delay:
+            parts.append(f"delay {model.delay}")
+        if model.update != "backward":
+            parts.append(f"{model.update} update")
+    elif frames is not None:
+        first = frames[0]
+        parts = [f"{first.dim}D", f"N = {first.n}", "L = " + " × ".join(f"{b:.4g}" for b in first.box)]
+    parts.append(window_text(window))
+    return " · ".join(parts)
+
+
 def write_csv(path: str, obj, columns) -> None:
     values = [getattr(obj, attr) for _, attr in columns]
+    headers = [h if h is not None else "xyz"[obj.axis_used] for h, _ in columns]
     with replace_atomically(path, newline="") as f:
         writer = csv.writer(f)
-        writer.writerow([h for h, _ in columns])
+        writer.writerow(headers)
         for row in zip(*[v.tolist() for v in values]):
             writer.writerow([int(x) if isinstance(x, bool) else x for x in row])
 
@@ -172,35 +294,37 @@ def write_json(path: str, data: dict) -> None:
         json.dump(data, f, indent=1)
 
 
-def plot(obj, path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5, 4), layout="constrained")
-    obj.plot(ax)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def summary_lines(results) -> list[str]:
+    from ..analysis._base import format_value
+
     lines = []
     for name, obj in results.items():
         if name == "polar":
-            lines.append(f"polar order: {obj.mean:.4g} ± {obj.mean_error:.2g}, chi {obj.susceptibility:.4g}, "
-                         f"G {obj.binder:.4g} (tau {obj.tau:.3g} samples)")
+            lines.append(f"polar order: <phi> {format_value(obj.mean, obj.mean_error, ' ± ')}, "
+                         f"chi {format_value(obj.susceptibility, obj.susceptibility_error, ' ± ')}, "
+                         f"G {format_value(obj.binder, obj.binder_error, ' ± ')} "
+                         f"(tau {obj.tau_time:.3g} time units, {obj.samples} values)")
         elif name == "fluctuations":
-            lines.append(f"number fluctuations: alpha {obj.alpha:.3f} ± {obj.alpha_error:.3f}")
+            lines.append(f"number fluctuations: alpha {format_value(obj.alpha, obj.alpha_error, ' ± ')}")
         elif name == "correlation":
-            lines.append(f"velocity correlation: first zero {obj.correlation_length:.4g}")
+            lines.append(f"velocity correlation: first zero of C(r) at r = {obj.correlation_length:.4g}")
         elif name == "profile":
-            lines.append(f"density profile: {obj.band_count} band(s), width {obj.band_width:.3g}, "
-                         f"speed {obj.band_speed:.3g}")
+            axis = "xyz"[obj.axis_used]
+            if obj.frames_with_bands:
+                lines.append(f"density profile along {axis}: bands in {obj.frames_with_bands} of {obj.num_frames} "
+                             f"frames ({obj.band_count} in the last), width {obj.band_width:.3g}, speed "
+                             f"{obj.band_speed:.3g} (length per time unit)")
+            else:
+                lines.append(f"density profile along {axis}: no significant band in {obj.num_frames} frames")
         elif name == "clusters":
-            lines.append(f"clusters: {obj.num_clusters}, largest fraction {obj.largest_fraction:.3f}")
+            lines.append(f"clusters: largest {obj.largest_fraction_mean:.3f} of N (mean over {obj.num_frames} "
+                         f"frames; last frame {obj.largest_fraction:.3f}), weight-average size "
+                         f"{format_value(obj.weight_average_size)}, number-average size "
+                         f"{format_value(obj.number_average_size)}")
         elif name == "boxcount":
-            lines.append(f"box counting: D {obj.dimension:.3f} ± {obj.dimension_error:.3f}")
+            error = "no error estimate from two box sizes" if math.isnan(obj.dimension_error) else None
+            lines.append(f"box counting: D {format_value(obj.dimension, obj.dimension_error, ' ± ')}"
+                         + (f" ({error})" if error else ""))
         elif name == "msd":
-            lines.append(f"MSD: {len(obj.lags)} lags, up to {obj.msd[-1]:.4g} at lag {obj.lags[-1]}")
-    return [f"flocking analyze: {line}" for line in lines]
+            lines.append(f"MSD: {len(obj.lag_steps)} lags, {obj.msd[-1]:.4g} at lag time {obj.lag_times[-1]:.4g}")
+    return lines
