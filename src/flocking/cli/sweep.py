@@ -20,9 +20,11 @@ from ..model import ParameterError
               help="Address of a running Dask scheduler, e.g. tcp://10.0.0.1:8786. [default: a local cluster]")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Worker processes of the local cluster. [default: one per core]")
+@click.option("--host", default=None, metavar="ADDRESS",
+              help="Interface the local cluster and its dashboard listen on. [default: 127.0.0.1]")
 @click.option("--serial", is_flag=True, help="Run the points one after another in this process, without Dask.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
-def sweep(sweep_file, out, results, scheduler, workers, serial, quiet):
+def sweep(sweep_file, out, results, scheduler, workers, host, serial, quiet):
     """Run every point of a sweep file and gather the results into an xarray Dataset.
 
     Each finished point is stored at once in OUT/points/<id>.json; running the same
@@ -37,10 +39,8 @@ def sweep(sweep_file, out, results, scheduler, workers, serial, quiet):
     from ..sweep import require
     from ..sweep.spec import SweepSpec
 
-    if serial and (scheduler or workers):
-        raise ParameterError("serial: runs in this process; leave out --scheduler and --workers")
-    if scheduler and workers:
-        raise ParameterError("workers: sizes the local cluster; a --scheduler brings its own workers")
+    if serial and (scheduler or workers or host):
+        raise ParameterError("serial: runs in this process; leave out --scheduler, --workers and --host")
     spec = SweepSpec.load(sweep_file)
     out = out or os.path.splitext(os.path.basename(sweep_file))[0]
     if os.path.exists(out) and not os.path.isdir(out):
@@ -49,27 +49,31 @@ def sweep(sweep_file, out, results, scheduler, workers, serial, quiet):
     from ..sweep.results import check_results_path, gather, save
 
     check_results_path(results)
-    require("xarray", "netCDF4" if results.endswith(".nc") else "zarr", *(() if serial else ("dask", "distributed")))
+    dask = () if serial else ("dask", "distributed") + (() if scheduler else ("cryptography",))
+    require("xarray", "netCDF4" if results.endswith(".nc") else "zarr", *dask)
+    from ..sweep.executors import Dask, Serial, reach
     from ..sweep.runner import PointStore, execute
 
     say = (lambda text: None) if quiet else (lambda text: click.echo(text, err=True))
+    executor = Serial() if serial else Dask(scheduler=scheduler, workers=workers, host=host, report=say)
+    if scheduler:
+        reach(scheduler)  # before anything is said or written
     store = PointStore(out)
     points = {p.id for p in spec.points()}
-    stored = sum(store.is_done(i) for i in points)
+    states = [store.state(i) for i in points]
+    stored, outdated = states.count("done"), states.count("outdated")
     say(f"flocking sweep: {len(points)} runs ({stored} stored, {len(points) - stored} to run) -> {out}")
+    if outdated:
+        say(f"flocking sweep: {outdated} stored runs were measured by an older flocking, without "
+            f"within-run errors; they run again")
     start = time.perf_counter()
     try:
-        summary = execute(spec, out, serial=serial, scheduler=scheduler, workers=workers,
-                          progress=not quiet, report=lambda text: click.echo(text, err=True))
+        summary = execute(spec, out, executor, progress=not quiet, report=lambda text: click.echo(text, err=True))
     except KeyboardInterrupt:
         done = sum(store.is_done(i) for i in points)
         click.echo(f"flocking sweep: interrupted; {done} of {len(points)} runs stored in {out}; "
                    f"run the same command again to resume", err=True)
         sys.exit(130)
-    except OSError as err:
-        if scheduler:
-            raise ParameterError(f"scheduler: cannot reach {scheduler!r} ({err})") from None
-        raise
     save(gather(spec, out), results)
     elapsed = time.perf_counter() - start
     say(f"flocking sweep: {summary['done']} run, {summary['failed']} failed, {summary['skipped']} already "
