@@ -86,29 +86,44 @@ def sweep(sweep_file, out, results, scheduler, workers, host, serial, quiet):
 
 @click.command("plot-sweep")
 @click.argument("results", metavar="RESULTS")
+@click.option("--view", type=click.Choice(["order", "fss"]), default="order", show_default=True,
+              help="order: order, susceptibility and Binder cumulant against --x; fss: Binder cumulant "
+                   "crossings and the peak susceptibility against the system size.")
 @click.option("--x", "x", default=None, help="Swept parameter on the horizontal axis. "
               "[default: the first that is not a system size]")
-@click.option("--out", default=None, help="PNG file. [default: RESULTS with .png]")
-def plot_sweep(results, x, out):
-    """Plot order, susceptibility and Binder cumulant of a sweep, one curve per system size.
+@click.option("--theme", type=click.Choice(["dark", "light"]), default="dark", show_default=True,
+              help="dark for screens and slides, light for paper.")
+@click.option("--size", type=click.Choice(["column", "page", "slide"]), default="page", show_default=True,
+              help="Width and fonts for a paper column (panels stacked), a page or a slide.")
+@click.option("--dpi", type=click.FloatRange(min=10, max=2000), default=None,
+              help="Pixels per inch of a .png. [default: 200]")
+@click.option("--out", default=None, help="Figure file: .png, .svg or .pdf. [default: RESULTS with .png, "
+              "or with -fss.png for --view fss]")
+def plot_sweep(results, view, x, theme, size, dpi, out):
+    """Plot a sweep: one curve per system size (and per value of any other swept parameter).
 
     RESULTS is a results file (.nc, .zarr) or a sweep output folder. Points are means over
-    replicas, error bars their standard errors.
+    replicas; an error bar is the larger of the error within the runs (from the
+    autocorrelation time) and the scatter between replicas, as the caption says.
 
     \b
     Examples:
       flocking plot-sweep vicsek/results.nc
-      flocking plot-sweep vicsek --x noise --out fig2a.png
+      flocking plot-sweep vicsek --x noise --out fig2a.pdf --theme light --size column
+      flocking plot-sweep vicsek --view fss --out fss.png
     """
     from ..sweep import require
-    from ..sweep.results import open_results, plot
+    from ..viz import style
 
-    require("xarray")
-    ds = open_results(results)
     if out is None:
         base = results.rstrip("/")
         base = os.path.join(base, "results") if os.path.isdir(base) and not base.endswith(".zarr") else base
-        out = os.path.splitext(base)[0] + ".png"
-    if not out.endswith(".png"):
-        raise ParameterError(f"out: must be a .png file (got {out!r})")
-    click.echo(f"flocking plot-sweep: wrote {plot(ds, out, x)}", err=True)
+        out = os.path.splitext(base)[0] + ("-fss" if view == "fss" else "") + ".png"
+    style.check_format(out)
+    require("xarray")
+    from ..sweep.figures import plot
+    from ..sweep.results import open_results
+
+    ds = open_results(results)
+    click.echo(f"flocking plot-sweep: wrote {plot(ds, out, x, view=view, theme=theme, size=size, dpi=dpi)}",
+               err=True)
