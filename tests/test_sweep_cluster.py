@@ -1,5 +1,6 @@
 """Sweeps on Dask clusters, attacked: who can reach the local cluster, a scheduler that is
-not there, a scheduler and workers started apart, a worker killed in the middle of a sweep.
+not there, a scheduler and workers started apart, a worker killed in the middle of a sweep,
+a scheduler that dies in the middle of one.
 
 Each test runs ``flocking sweep`` in a process group of its own and inspects it from outside,
 as an operating system sees it: listening sockets of the process and its children (psutil).
@@ -203,48 +204,102 @@ def test_executor_options_that_contradict_each_other_are_refused():
     assert check_address("tls://[::1]:8786") == ("tls", "[::1]:8786")
 
 
+class Apart:
+    """``dask scheduler`` and ``dask worker`` (nannies) started as separate processes, on loopback."""
+
+    def __init__(self, tmp_path, workers: int):
+        file = str(tmp_path / "scheduler.json")
+        quiet = dict(cwd=tmp_path, env=ENV, start_new_session=True, stdout=subprocess.DEVNULL,
+                     stderr=subprocess.DEVNULL)
+        self.scheduler = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host",
+                                           "127.0.0.1", "--port", "0", "--dashboard-address", "127.0.0.1:0",
+                                           "--scheduler-file", file], **quiet)
+        self.workers = None
+        try:
+            wait_for(lambda: os.path.exists(file) and os.path.getsize(file) > 0, what="the scheduler file")
+            self.address = json.loads(open(file).read())["address"]
+            self.workers = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", self.address,
+                                             "--nworkers", str(workers), "--nthreads", "1", "--host", "127.0.0.1",
+                                             "--dashboard-address", "127.0.0.1:0"], **quiet)
+            with distributed.Client(self.address, timeout="60s") as client:
+                client.wait_for_workers(workers, timeout=120)
+        except BaseException:
+            self.stop()
+            raise
+
+    def worker_processes(self) -> list[int]:
+        return [pid for pid in listening(self.workers.pid) if pid != self.workers.pid]
+
+    def stop(self) -> None:
+        for proc in (self.workers, self.scheduler):
+            if proc is not None:
+                stop(proc)
+
+
+def serial_results(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "flocking", "sweep", "s.toml", "--serial", "--out", "serial", "-q"],
+                          cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    return open_results(str(tmp_path / "serial")).drop_vars("elapsed")
+
+
 def test_a_scheduler_and_workers_started_apart_survive_a_killed_worker(tmp_path):
-    """``dask scheduler`` and ``dask worker`` (two nannies) as separate processes; one
-    worker process is killed once the first points are stored: its nanny restarts it,
-    Dask runs its task again, and the results are those of a serial sweep, bit for bit."""
+    """One worker process is killed once the first points are stored: its nanny restarts
+    it, Dask runs its task again, and the results are those of a serial sweep, bit for bit."""
     (tmp_path / "s.toml").write_text(SLOW)
-    file = str(tmp_path / "scheduler.json")
-    common = dict(cwd=tmp_path, env=ENV, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    scheduler = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-                                  "--port", "0", "--dashboard-address", "127.0.0.1:0", "--scheduler-file", file],
-                                 **common)
-    workers = None
+    cluster = Apart(tmp_path, workers=2)
     sweep = None
     try:
-        wait_for(lambda: os.path.exists(file) and os.path.getsize(file) > 0, what="the scheduler file")
-        address = json.loads(open(file).read())["address"]
-        workers = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "2",
-                                    "--nthreads", "1", "--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0"],
-                                   **common)
-        with distributed.Client(address, timeout="60s") as client:
-            client.wait_for_workers(2, timeout=120)
-        sweep = start(["sweep", "s.toml", "--scheduler", address, "--out", "dask", "-q"], tmp_path)
+        sweep = start(["sweep", "s.toml", "--scheduler", cluster.address, "--out", "dask", "-q"], tmp_path)
         points = tmp_path / "dask" / "points"
         wait_for(lambda: points.is_dir() and len(list(points.glob("*.json"))) >= 1, what="a stored point")
-        victims = [pid for pid in listening(workers.pid) if pid != workers.pid]
+        victims = cluster.worker_processes()
         assert len(victims) == 2
         os.kill(victims[0], signal.SIGKILL)
         out, err = sweep.communicate(timeout=300)
         assert sweep.returncode == 0, err
         assert not psutil.pid_exists(victims[0])
-        wait_for(lambda: len([pid for pid in listening(workers.pid) if pid != workers.pid]) == 2,
-                 what="the nanny to restart the killed worker")
-        serial = subprocess.run([sys.executable, "-m", "flocking", "sweep", "s.toml", "--serial", "--out", "serial",
-                                 "-q"], cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
-        assert serial.returncode == 0, serial.stderr
+        wait_for(lambda: len(cluster.worker_processes()) == 2, what="the nanny to restart the killed worker")
         a = open_results(str(tmp_path / "dask")).drop_vars("elapsed")
-        b = open_results(str(tmp_path / "serial")).drop_vars("elapsed")
-        xr.testing.assert_identical(a, b)
+        xr.testing.assert_identical(a, serial_results(tmp_path))
         assert (a["status"] == "done").all() and np.isfinite(a["order_error"]).all()
-        again = subprocess.run([sys.executable, "-m", "flocking", "sweep", "s.toml", "--scheduler", address,
+        again = subprocess.run([sys.executable, "-m", "flocking", "sweep", "s.toml", "--scheduler", cluster.address,
                                 "--out", "dask"], cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=120)
         assert again.returncode == 0 and "0 run, 0 failed, 8 already stored" in again.stderr, again.stderr
     finally:
-        for proc in (sweep, workers, scheduler):
-            if proc is not None:
-                stop(proc)
+        if sweep is not None:
+            stop(sweep)
+        cluster.stop()
+
+
+def test_a_scheduler_that_dies_loses_no_finished_run(tmp_path):
+    """The scheduler is killed once the first points are stored: the sweep ends (exit 1)
+    with one line per unfinished run, each recorded as failed; the finished ones are kept,
+    and a rerun (here in-process) completes the sweep with the results of a serial one."""
+    (tmp_path / "s.toml").write_text(SLOW)
+    cluster = Apart(tmp_path, workers=1)
+    sweep = None
+    try:
+        sweep = start(["sweep", "s.toml", "--scheduler", cluster.address, "--out", "dask", "-q"], tmp_path)
+        points = tmp_path / "dask" / "points"
+        wait_for(lambda: points.is_dir() and len(list(points.glob("*.json"))) >= 1, what="a stored point")
+        os.killpg(cluster.scheduler.pid, signal.SIGKILL)
+        out, err = sweep.communicate(timeout=120)
+        assert sweep.returncode == 1, err
+        records = [json.loads(p.read_text()) for p in points.glob("*.json")]
+        failed = [r for r in records if r["status"] == "failed"]
+        assert failed and len(records) - len(failed) >= 1
+        assert all("scheduler-connection-lost" in r["error"] for r in failed)
+        reported = [line for line in err.splitlines() if line.startswith("flocking sweep: point ")]
+        assert len(reported) == len(failed) and all("FutureCancelledError" in line for line in reported)
+        rerun = subprocess.run([sys.executable, "-m", "flocking", "sweep", "s.toml", "--serial", "--out", "dask"],
+                               cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
+        assert rerun.returncode == 0, rerun.stderr
+        assert f"{8 - len(records) + len(failed)} run, 0 failed, {len(records) - len(failed)} already stored" \
+            in rerun.stderr
+        xr.testing.assert_identical(open_results(str(tmp_path / "dask")).drop_vars("elapsed"),
+                                    serial_results(tmp_path))
+    finally:
+        if sweep is not None:
+            stop(sweep)
+        cluster.stop()

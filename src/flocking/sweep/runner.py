@@ -186,7 +186,7 @@ def execute(spec: SweepSpec, out: str | os.PathLike, executor=None, *, progress:
             summary["failures"].append(record)
             label = ", ".join(f"{k}={v!r}" for k, v in record["params"].items())
             report(f"flocking sweep: point {record['id']} ({label}, replica={record['replica']}) "
-                   f"failed: {record['error']}")
+                   f"failed: {record['error'].splitlines()[0]}")  # one line each; the record keeps all
 
     with executor:
         os.makedirs(store.folder, exist_ok=True)
