@@ -52,8 +52,8 @@ def spec_of(**tables):
 @pytest.fixture(scope="module")
 def cluster():
     """A real Dask cluster on loopback: one single-threaded worker inside this process."""
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://", host="127.0.0.1",
-                                  dashboard_address="127.0.0.1:0") as c:
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://",
+                                  host="127.0.0.1", dashboard_address="127.0.0.1:0") as c:
         yield c
 
 

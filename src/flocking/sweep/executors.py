@@ -16,10 +16,8 @@ that it is sent).
 >>> with Serial() as ex:
 ...     ex.where, ex.threads
 ('in-process', None)
->>> check_address("tcp://login1")
-Traceback (most recent call last):
-...
-flocking.model.ParameterError: scheduler: must be an address such as tcp://10.0.0.1:8786 (got 'tcp://login1': missing port number in address 'login1')
+>>> check_address("10.0.0.1:8786")  # Dask's default protocol
+('tcp', '10.0.0.1:8786')
 """
 
 from __future__ import annotations
