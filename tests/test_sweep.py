@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -20,7 +21,9 @@ from flocking.cli import main  # noqa: E402
 from flocking.model import ParameterError  # noqa: E402
 from flocking.observables import polar_moments  # noqa: E402
 from flocking.sweep import require  # noqa: E402
-from flocking.sweep.results import gather, open_results, save, summarise  # noqa: E402
+from flocking.sweep.figures import summarise  # noqa: E402
+from flocking.sweep.results import gather, open_results, save  # noqa: E402
+from flocking.sweep.executors import Dask, Serial  # noqa: E402
 from flocking.sweep.runner import PointStore, execute, run_point, task_of  # noqa: E402
 from flocking.sweep.spec import SweepSpec, expand, point_seed  # noqa: E402
 
@@ -49,17 +52,22 @@ def spec_of(**tables):
 @pytest.fixture(scope="module")
 def cluster():
     """A real Dask cluster on loopback: one single-threaded worker inside this process."""
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://", host="127.0.0.1",
-                                  dashboard_address=":0") as c:
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://",
+                                  host="127.0.0.1", dashboard_address="127.0.0.1:0") as c:
         yield c
+
+
+def on(cluster):
+    """An executor on the running ``cluster`` (as ``--scheduler`` makes one)."""
+    return Dask(scheduler=cluster.scheduler_address, report=lambda text: None)
 
 
 def results_without_timing(out):
     return open_results(os.path.join(out, "results.nc")).drop_vars("elapsed")
 
 
-def run_and_save(spec, out, **kw):
-    summary = execute(spec, out, progress=False, report=lambda text: None, **kw)
+def run_and_save(spec, out, executor=None):
+    summary = execute(spec, out, executor, progress=False, report=lambda text: None)
     save(gather(spec, out), os.path.join(out, "results.nc"))
     return summary
 
@@ -118,7 +126,7 @@ def test_ranges_expand_inclusively_and_round_integer_parameters():
     ({"sweep": {"replicas": 0}}, "sweep.replicas: must be a whole number >= 1"),
     ({"sweep": {"discard": 1.0}}, "sweep.discard: a fraction must be in [0, 1)"),
     ({"sweep": {"discard": "half"}}, "sweep.discard: must be a number of steps"),
-    ({"sweep": {"discard": 50}, "base": {"steps": 50}}, "sweep.discard: must leave at least one step"),
+    ({"sweep": {"discard": 49}, "base": {"steps": 50}}, "sweep.discard: must leave at least two steps"),
     ({"sweep": {"time_series": 1}}, "sweep.time_series: must be true or false"),
     ({"base": []}, "base: must be a table"),
 ])
@@ -144,8 +152,8 @@ def test_a_point_measures_the_polar_order_of_its_own_run(tmp_path):
 def test_serial_and_dask_give_identical_results_and_a_rerun_computes_nothing(tmp_path, cluster):
     spec = SweepSpec.from_toml(SMALL)
     serial, dask = str(tmp_path / "serial"), str(tmp_path / "dask")
-    s = run_and_save(spec, serial, serial=True)
-    d = run_and_save(spec, dask, scheduler=cluster.scheduler_address)
+    s = run_and_save(spec, serial, Serial())
+    d = run_and_save(spec, dask, on(cluster))
     assert (s["done"], s["failed"], d["done"], d["failed"]) == (12, 0, 12, 0)
     a, b = results_without_timing(serial), results_without_timing(dask)
     xr.testing.assert_identical(a, b)
@@ -157,14 +165,14 @@ def test_serial_and_dask_give_identical_results_and_a_rerun_computes_nothing(tmp
     assert np.allclose(a["susceptibility"], chi, rtol=1e-9, atol=1e-12)
     config = flocking.config.RunConfig.from_toml(str(a["config"].sel(noise=3.0, n=40, replica=1).values))
     assert config.model.seed == int(a["seed"].sel(noise=3.0, n=40, replica=1))
-    again = execute(spec, dask, scheduler=cluster.scheduler_address, progress=False)
+    again = execute(spec, dask, on(cluster), progress=False)
     assert (again["done"], again["skipped"]) == (0, 12)
 
 
 def test_resume_computes_only_the_missing_points_and_matches_an_uninterrupted_sweep(tmp_path, cluster):
     spec = SweepSpec.from_toml(SMALL)
     out = str(tmp_path / "out")
-    run_and_save(spec, out, serial=True)
+    run_and_save(spec, out)
     whole = results_without_timing(out)
     store = PointStore(out)
     lost = [p.id for p in spec.points()[4:7]]
@@ -172,7 +180,7 @@ def test_resume_computes_only_the_missing_points_and_matches_an_uninterrupted_sw
         os.remove(store.path(point_id))
     with open(store.path(spec.points()[0].id), "w") as f:
         f.write('{"id": "trunc')  # a torn file (not ours: we write atomically) counts as missing
-    summary = run_and_save(spec, out, scheduler=cluster.scheduler_address)
+    summary = run_and_save(spec, out, on(cluster))
     assert (summary["done"], summary["skipped"]) == (4, 8)
     xr.testing.assert_identical(results_without_timing(out), whole)
 
@@ -184,7 +192,7 @@ def test_a_failing_point_is_recorded_does_not_stop_the_others_and_is_retried(tmp
                    grid={"noise": [0.5, 2.0], "init": ["random", str(bad)]})
     out = str(tmp_path / "out")
     messages = []
-    summary = execute(spec, out, scheduler=cluster.scheduler_address, progress=False, report=messages.append)
+    summary = execute(spec, out, on(cluster), progress=False, report=messages.append)
     assert (summary["done"], summary["failed"]) == (2, 2)
     assert len(messages) == 2 and all("failed" in m and f"init='{bad}'" in m and "noise=" in m for m in messages)
     ds = gather(spec, out)
@@ -196,7 +204,7 @@ def test_a_failing_point_is_recorded_does_not_stop_the_others_and_is_retried(tmp
     sim = flocking.Simulation(spec.points()[0].config.model)
     sim.writers.append(flocking.GSDWriter(str(bad), every=0))
     sim.run(3)
-    again = execute(spec, out, serial=True, progress=False)
+    again = execute(spec, out, progress=False)
     assert (again["done"], again["failed"], again["skipped"]) == (2, 0, 2)
     assert (gather(spec, out)["status"] == "done").all()
 
@@ -208,7 +216,7 @@ def test_killing_a_sweep_keeps_every_finished_point_and_the_rerun_completes_it(t
     cmd = [sys.executable, "-m", "flocking", "sweep", "s.toml", "--serial", "-q"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=env)
     points = tmp_path / "s" / "points"
-    deadline = time.time() + 30
+    deadline = time.time() + 180  # generous: a shared machine may run it slowly
     while time.time() < deadline and len(list(points.glob("*.json"))) < 2:
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
@@ -229,7 +237,7 @@ def test_time_series_trajectories_and_zarr(tmp_path):
     spec = spec_of(sweep={"replicas": 1, "discard": 4, "time_series": True, "keep_trajectories": True},
                    base={"n": 25, "box": 5.0, "steps": 10, "every": 5}, grid={"noise": [0.5, 1.5]})
     out = str(tmp_path / "out")
-    execute(spec, out, serial=True, progress=False)
+    execute(spec, out, progress=False)
     ds = gather(spec, out)
     assert ds["phi"].shape == (2, 1, 6) and (ds["first_step"] == 5).all()
     for point in spec.points():
@@ -244,7 +252,44 @@ def test_time_series_trajectories_and_zarr(tmp_path):
         save(ds, str(tmp_path / "r.csv"))
 
 
-def test_summary_averages_replicas_with_standard_errors():
+def test_results_files_are_written_and_read_without_any_warning(tmp_path):
+    """netCDF and Zarr, text (status, configurations, a text coordinate), NaN (a missing
+    run) and a time series: written twice (the second replaces the first) and read by
+    every reader at hand, with every warning an error."""
+    import netCDF4
+    zarr = pytest.importorskip("zarr")
+
+    spec = spec_of(sweep={"replicas": 2, "discard": 4, "time_series": True}, base={"n": 25, "box": 5.0, "steps": 10},
+                   grid={"noise": [0.5, 1.5], "init": ["random", "aligned"]})
+    out = str(tmp_path / "out")
+    execute(spec, out, progress=False)
+    os.remove(PointStore(out).path(spec.points()[-1].id))
+    ds = gather(spec, out)
+    assert ds["status"].values.ravel().tolist().count("missing") == 1 and np.isnan(ds["order"]).sum() == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in ("r.nc", "r.zarr"):
+            path = str(tmp_path / name)
+            save(ds.isel(replica=[0]), path)
+            save(ds, path)
+            xr.testing.assert_identical(open_results(path), ds)
+            assert sorted(os.listdir(tmp_path)) == sorted(["out", *(["r.nc"] if name == "r.zarr" else []), name])
+        with xr.open_zarr(str(tmp_path / "r.zarr")) as z:
+            xr.testing.assert_identical(z.load(), ds)
+        with xr.open_dataset(str(tmp_path / "r.zarr"), engine="zarr") as z:
+            xr.testing.assert_identical(z.load(), ds)
+        group = zarr.open_group(str(tmp_path / "r.zarr"), mode="r")
+        assert group["status"][...].tolist() == ds["status"].values.tolist()
+        assert np.array_equal(group["order"][...], ds["order"].values, equal_nan=True)
+        with xr.open_dataset(str(tmp_path / "r.nc"), engine="netcdf4") as nc:
+            xr.testing.assert_identical(nc.load(), ds)
+        with netCDF4.Dataset(str(tmp_path / "r.nc")) as nc:
+            assert np.array_equal(nc["phi"][...].filled(np.nan), ds["phi"].values, equal_nan=True)
+            assert nc["config"][0, 0, 0] == ds["config"].values[0, 0, 0]
+
+
+def test_results_without_within_run_errors_are_summarised_with_standard_errors():
+    """A results file of an older flocking: no ``*_error`` variables."""
     order = np.array([[[0.2, 0.4, 0.6], [0.5, 0.5, np.nan]]])  # noise x n x replica
     ds = xr.Dataset({name: (("noise", "n", "replica"), order) for name in ("order", "susceptibility", "binder")},
                     coords={"noise": [1.0], "n": [10, 20], "replica": [0, 1, 2]})

@@ -20,9 +20,11 @@ from ..model import ParameterError
               help="Address of a running Dask scheduler, e.g. tcp://10.0.0.1:8786. [default: a local cluster]")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Worker processes of the local cluster. [default: one per core]")
+@click.option("--host", default=None, metavar="ADDRESS",
+              help="Interface the local cluster and its dashboard listen on. [default: 127.0.0.1]")
 @click.option("--serial", is_flag=True, help="Run the points one after another in this process, without Dask.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
-def sweep(sweep_file, out, results, scheduler, workers, serial, quiet):
+def sweep(sweep_file, out, results, scheduler, workers, host, serial, quiet):
     """Run every point of a sweep file and gather the results into an xarray Dataset.
 
     Each finished point is stored at once in OUT/points/<id>.json; running the same
@@ -37,10 +39,8 @@ def sweep(sweep_file, out, results, scheduler, workers, serial, quiet):
     from ..sweep import require
     from ..sweep.spec import SweepSpec
 
-    if serial and (scheduler or workers):
-        raise ParameterError("serial: runs in this process; leave out --scheduler and --workers")
-    if scheduler and workers:
-        raise ParameterError("workers: sizes the local cluster; a --scheduler brings its own workers")
+    if serial and (scheduler or workers or host):
+        raise ParameterError("serial: runs in this process; leave out --scheduler, --workers and --host")
     spec = SweepSpec.load(sweep_file)
     out = out or os.path.splitext(os.path.basename(sweep_file))[0]
     if os.path.exists(out) and not os.path.isdir(out):
@@ -49,27 +49,31 @@ def sweep(sweep_file, out, results, scheduler, workers, serial, quiet):
     from ..sweep.results import check_results_path, gather, save
 
     check_results_path(results)
-    require("xarray", "netCDF4" if results.endswith(".nc") else "zarr", *(() if serial else ("dask", "distributed")))
+    dask = () if serial else ("dask", "distributed") + (() if scheduler else ("cryptography",))
+    require("xarray", "netCDF4" if results.endswith(".nc") else "zarr", *dask)
+    from ..sweep.executors import Dask, Serial, reach
     from ..sweep.runner import PointStore, execute
 
     say = (lambda text: None) if quiet else (lambda text: click.echo(text, err=True))
+    executor = Serial() if serial else Dask(scheduler=scheduler, workers=workers, host=host, report=say)
+    if scheduler:
+        reach(scheduler)  # before anything is said or written
     store = PointStore(out)
     points = {p.id for p in spec.points()}
-    stored = sum(store.is_done(i) for i in points)
+    states = [store.state(i) for i in points]
+    stored, outdated = states.count("done"), states.count("outdated")
     say(f"flocking sweep: {len(points)} runs ({stored} stored, {len(points) - stored} to run) -> {out}")
+    if outdated:
+        say(f"flocking sweep: {outdated} stored runs were measured by an older flocking, without "
+            f"within-run errors; they run again")
     start = time.perf_counter()
     try:
-        summary = execute(spec, out, serial=serial, scheduler=scheduler, workers=workers,
-                          progress=not quiet, report=lambda text: click.echo(text, err=True))
+        summary = execute(spec, out, executor, progress=not quiet, report=lambda text: click.echo(text, err=True))
     except KeyboardInterrupt:
         done = sum(store.is_done(i) for i in points)
         click.echo(f"flocking sweep: interrupted; {done} of {len(points)} runs stored in {out}; "
                    f"run the same command again to resume", err=True)
         sys.exit(130)
-    except OSError as err:
-        if scheduler:
-            raise ParameterError(f"scheduler: cannot reach {scheduler!r} ({err})") from None
-        raise
     save(gather(spec, out), results)
     elapsed = time.perf_counter() - start
     say(f"flocking sweep: {summary['done']} run, {summary['failed']} failed, {summary['skipped']} already "
@@ -82,29 +86,44 @@ def sweep(sweep_file, out, results, scheduler, workers, serial, quiet):
 
 @click.command("plot-sweep")
 @click.argument("results", metavar="RESULTS")
+@click.option("--view", type=click.Choice(["order", "fss"]), default="order", show_default=True,
+              help="order: order, susceptibility and Binder cumulant against --x; fss: Binder cumulant "
+                   "crossings and the peak susceptibility against the system size.")
 @click.option("--x", "x", default=None, help="Swept parameter on the horizontal axis. "
               "[default: the first that is not a system size]")
-@click.option("--out", default=None, help="PNG file. [default: RESULTS with .png]")
-def plot_sweep(results, x, out):
-    """Plot order, susceptibility and Binder cumulant of a sweep, one curve per system size.
+@click.option("--theme", type=click.Choice(["dark", "light"]), default="dark", show_default=True,
+              help="dark for screens and slides, light for paper.")
+@click.option("--size", type=click.Choice(["column", "page", "slide"]), default="page", show_default=True,
+              help="Width and fonts for a paper column (panels stacked), a page or a slide.")
+@click.option("--dpi", type=click.FloatRange(min=10, max=2000), default=None,
+              help="Pixels per inch of a .png. [default: 200]")
+@click.option("--out", default=None, help="Figure file: .png, .svg or .pdf. [default: RESULTS with .png, "
+              "or with -fss.png for --view fss]")
+def plot_sweep(results, view, x, theme, size, dpi, out):
+    """Plot a sweep: one curve per system size (and per value of any other swept parameter).
 
     RESULTS is a results file (.nc, .zarr) or a sweep output folder. Points are means over
-    replicas, error bars their standard errors.
+    replicas; an error bar is the larger of the error within the runs (from the
+    autocorrelation time) and the scatter between replicas, as the caption says.
 
     \b
     Examples:
       flocking plot-sweep vicsek/results.nc
-      flocking plot-sweep vicsek --x noise --out fig2a.png
+      flocking plot-sweep vicsek --x noise --out fig2a.pdf --theme light --size column
+      flocking plot-sweep vicsek --view fss --out fss.png
     """
     from ..sweep import require
-    from ..sweep.results import open_results, plot
+    from ..viz import style
 
-    require("xarray")
-    ds = open_results(results)
     if out is None:
         base = results.rstrip("/")
         base = os.path.join(base, "results") if os.path.isdir(base) and not base.endswith(".zarr") else base
-        out = os.path.splitext(base)[0] + ".png"
-    if not out.endswith(".png"):
-        raise ParameterError(f"out: must be a .png file (got {out!r})")
-    click.echo(f"flocking plot-sweep: wrote {plot(ds, out, x)}", err=True)
+        out = os.path.splitext(base)[0] + ("-fss" if view == "fss" else "") + ".png"
+    style.check_format(out)
+    require("xarray")
+    from ..sweep.figures import plot
+    from ..sweep.results import open_results
+
+    ds = open_results(results)
+    click.echo(f"flocking plot-sweep: wrote {plot(ds, out, x, view=view, theme=theme, size=size, dpi=dpi)}",
+               err=True)

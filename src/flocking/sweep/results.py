@@ -1,4 +1,4 @@
-"""A sweep's results as an xarray Dataset: gather, save (netCDF or Zarr), open, plot.
+"""A sweep's results as an xarray Dataset: gather, save (netCDF or Zarr), open.
 
 Dimensions: the swept parameters, in the order of the sweep file, then ``replica``.
 Variables, one value per run (NaN where a run failed or has not run yet):
@@ -6,6 +6,11 @@ Variables, one value per run (NaN where a run failed or has not run yet):
 - ``order`` (the time average of the polar order ``<phi>``), ``phi2``, ``phi4``,
   ``susceptibility`` (``N (<phi^2> - <phi>^2)``), ``binder`` (``1 - <phi^4> / 3 <phi^2>^2``),
   all over the steps after the transient (``flocking.observables.polar_moments``);
+- ``order_error``, ``phi2_error``, ... ``binder_error``: their errors within the run
+  (:class:`flocking.analysis.PolarOrder`: the integrated autocorrelation time for
+  ``<phi>``, a block jackknife for the others), ``tau`` (that autocorrelation time, in
+  steps) and ``drift`` (the difference of the two halves of the window in errors; above 4
+  the run had likely not settled);
 - ``seed`` (the run's seed), ``n`` (its particle count), ``status`` (``done``, ``failed``
   or ``missing``), ``config`` (the run's TOML configuration: ``flocking run --config``
   repeats it), ``elapsed`` (seconds; the one variable that differs between two runs of a sweep);
@@ -28,20 +33,24 @@ from ..model import ParameterError
 from .runner import PointStore
 from .spec import SweepSpec
 
-MEASURES = ("order", "phi2", "phi4", "susceptibility", "binder")
-_MOMENT = {"order": "mean", "phi2": "phi2", "phi4": "phi4", "susceptibility": "susceptibility",
-           "binder": "binder"}
-#: Parameters that set the system size: one curve each in ``plot-sweep``.
-SIZE_KEYS = ("n", "box", "density")
+#: Result variable -> the moment of a record it holds.
+MEASURES = {"order": "mean", "phi2": "phi2", "phi4": "phi4", "susceptibility": "susceptibility",
+            "binder": "binder"}
+_LONG_NAMES = {"order": "<phi>", "phi2": "<phi^2>", "phi4": "<phi^4>",
+               "susceptibility": "N (<phi^2> - <phi>^2)", "binder": "1 - <phi^4> / (3 <phi^2>^2)"}
 
 
 def gather(spec: SweepSpec, out: str | os.PathLike):
-    """The Dataset of every point of ``spec`` stored under ``out``."""
+    """The Dataset of every point of ``spec`` stored under ``out``.
+
+    Records stored by a flocking older than within-run errors hold NaN errors.
+    """
     import xarray as xr
 
     store = PointStore(out)
     shape = spec.shape
-    floats = {name: np.full(shape, np.nan) for name in (*MEASURES, "elapsed")}
+    errors = [f"{name}_error" for name in MEASURES]
+    floats = {name: np.full(shape, np.nan) for name in (*MEASURES, *errors, "tau", "drift", "elapsed")}
     seed = np.zeros(shape, dtype=np.int64)
     size = np.zeros(shape, dtype=np.int64)
     first = np.zeros(shape, dtype=np.int64)
@@ -59,15 +68,18 @@ def gather(spec: SweepSpec, out: str | os.PathLike):
         floats["elapsed"][i] = record.get("elapsed", np.nan)
         if record["status"] != "done":
             continue
-        for name in MEASURES:
-            floats[name][i] = record["moments"][_MOMENT[name]]
+        within = record.get("errors", {})
+        for name, moment in MEASURES.items():
+            floats[name][i] = record["moments"][moment]
+            floats[f"{name}_error"][i] = _number(within.get(moment))
+        floats["tau"][i], floats["drift"][i] = _number(record.get("tau")), _number(record.get("drift"))
         first[i] = record["first_step"]
         if "phi" in record:
             series[i] = record["phi"]
     dims = spec.dims
     coords = {key: _coordinate(values) for key, values in spec.grid.items()}
     coords["replica"] = np.arange(spec.replicas)
-    data = {name: (dims, floats[name]) for name in (*MEASURES, "elapsed")}
+    data = {name: (dims, values) for name, values in floats.items()}
     data.update(seed=(dims, seed), n=(dims, size), status=(dims, status.astype(str)),
                 config=(dims, config.astype(str)))
     if spec.time_series:
@@ -83,11 +95,17 @@ def gather(spec: SweepSpec, out: str | os.PathLike):
     ds.attrs.update(sweep=spec.text, sweep_seed=spec.seed, replicas=spec.replicas,
                     discard=json.dumps(spec.discard), title="flocking sweep",
                     seed_rule="sha256(json {point, replica, seed}) first 8 bytes little-endian >> 11")
-    units = {"order": "<phi>", "phi2": "<phi^2>", "phi4": "<phi^4>",
-             "susceptibility": "N (<phi^2> - <phi>^2)", "binder": "1 - <phi^4> / (3 <phi^2>^2)"}
-    for name, text in units.items():
+    for name, text in _LONG_NAMES.items():
         ds[name].attrs["long_name"] = text
+        ds[f"{name}_error"].attrs["long_name"] = f"error of {text} within the run"
+    ds["tau"].attrs["long_name"] = "integrated autocorrelation time of phi"
+    ds["tau"].attrs["units"] = "steps"
+    ds["drift"].attrs["long_name"] = "second-half mean - first-half mean of phi, in errors"
     return ds
+
+
+def _number(value) -> float:
+    return np.nan if value is None else float(value)
 
 
 def _coordinate(values: list[Any]) -> np.ndarray:
@@ -98,20 +116,33 @@ def _coordinate(values: list[Any]) -> np.ndarray:
 
 
 def save(ds, path: str | os.PathLike) -> str:
-    """Write ``ds`` to ``path`` (``.nc``: netCDF4, ``.zarr``: Zarr), replacing it atomically."""
+    """Write ``ds`` to ``path`` (``.nc``: netCDF4, ``.zarr``: Zarr), replacing it atomically.
+
+    Zarr stores are written in Zarr format 2 with consolidated metadata: its text type
+    (``<U``) and its consolidated metadata are part of that specification, so every Zarr
+    reader (zarr-python 2 and 3 among them) and ``xarray.open_zarr`` read it without a
+    warning, which format 3 does not allow yet (no specified fixed-length text type, and
+    consolidated metadata outside its specification).
+    """
     path = os.fspath(path)
+    check_results_path(path)
     tmp = f"{path}.tmp{os.getpid()}"
     if path.endswith(".nc"):
         ds.to_netcdf(tmp, engine="netcdf4")
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
         os.replace(tmp, path)
-    elif path.endswith(".zarr"):
-        shutil.rmtree(tmp, ignore_errors=True)
-        ds.to_zarr(tmp, mode="w")
-        if os.path.isdir(path):
-            shutil.rmtree(path)
-        os.replace(tmp, path)
-    else:
-        raise ParameterError(f"results: must end in .nc (netCDF) or .zarr (got {path!r})")
+        return path
+    import zarr
+
+    shutil.rmtree(tmp, ignore_errors=True)
+    version = {"zarr_format": 2} if int(zarr.__version__.split(".")[0]) >= 3 else {}
+    ds.to_zarr(tmp, mode="w", consolidated=True, **version)
+    old = f"{path}.old{os.getpid()}"
+    if os.path.isdir(path):
+        os.replace(path, old)  # a folder cannot be renamed over another: move the old one aside
+    os.replace(tmp, path)
+    shutil.rmtree(old, ignore_errors=True)
     return path
 
 
@@ -135,75 +166,8 @@ def open_results(path: str | os.PathLike):
     if not os.path.exists(path):
         raise ParameterError(f"results: no such file {path!r}")
     try:
-        if path.rstrip("/").endswith(".zarr"):
-            ds = xr.open_zarr(path)
-        else:
-            ds = xr.open_dataset(path)
-        return ds.load()
+        opened = xr.open_zarr(path) if path.rstrip("/").endswith(".zarr") else xr.open_dataset(path)
+        with opened as ds:
+            return ds.load()
     except Exception as err:  # netCDF and Zarr raise many kinds on a foreign file
         raise ParameterError(f"results: cannot read {path!r} ({err})") from None
-
-
-def summarise(ds, x: str | None = None):
-    """Mean and standard error over replicas of each measure, and the axis and curve dimensions.
-
-    ``x`` defaults to the first swept parameter that does not set the system size; curves
-    are every combination of the other swept parameters.
-    """
-    dims = [d for d in ds["order"].dims if d != "replica"]
-    if not dims:
-        raise ParameterError("results: nothing was swept; there is no curve to draw")
-    if x is None:
-        others = [d for d in dims if d not in SIZE_KEYS]
-        x = (others or dims)[0]
-    elif x not in dims:
-        raise ParameterError(f"x: must be one of the swept parameters {', '.join(dims)} (got {x!r})")
-    curves = [d for d in dims if d != x]
-    stats = {}
-    for name in ("order", "susceptibility", "binder"):
-        values = ds[name]
-        count = values.count("replica")
-        mean = values.mean("replica", skipna=True)
-        sem = values.std("replica", ddof=1, skipna=True) / np.sqrt(count)
-        stats[name] = (mean, sem.where(count > 1, 0.0))
-    return x, curves, stats
-
-
-def plot(ds, path: str | os.PathLike, x: str | None = None) -> str:
-    """Order, susceptibility and Binder cumulant against ``x``, one curve per other setting, as PNG."""
-    import itertools
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    x, curves, stats = summarise(ds, x)
-    labels = {"order": r"order $\langle\phi\rangle$", "susceptibility": r"susceptibility $\chi$",
-              "binder": r"Binder cumulant $G$"}
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
-    combos = list(itertools.product(*(range(ds.sizes[c]) for c in curves)))
-    for combo in combos:
-        sel = {c: i for c, i in zip(curves, combo)}
-        label = ", ".join(f"{c}={ds[c].values[i]}" for c, i in sel.items()) or None
-        for ax, name in zip(axes, stats):
-            mean, sem = (a.isel(sel) for a in stats[name])
-            ax.errorbar(ds[x].values, mean.values, yerr=sem.values, marker="o", ms=3.5, capsize=2,
-                        lw=1.2, label=label)
-    for ax, name in zip(axes, stats):
-        ax.set_xlabel(x)
-        ax.set_ylabel(labels[name])
-        ax.grid(alpha=0.3)
-    axes[0].set_ylim(bottom=0)
-    axes[2].axhline(2 / 3, color="0.6", ls="--", lw=0.8)
-    axes[2].axhline(1 / 3, color="0.6", ls=":", lw=0.8)
-    if combos and curves:
-        axes[0].legend(fontsize=8)
-    title = ds.attrs.get("title", "")
-    reps = ds.sizes.get("replica", 1)
-    fig.suptitle(f"{title}: mean over {reps} replica{'s' * (reps != 1)}, error bars: standard error",
-                 fontsize=10)
-    path = os.fspath(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path

@@ -1,30 +1,36 @@
-"""Running a sweep: one pure task per point, a folder of finished points, Dask or serial.
+"""Running a sweep: one pure task per point, a folder of finished points, any executor.
 
 Every point is a task ``run_point(task) -> record`` that never raises: a failure comes
 back as a record with ``status = "failed"`` and the error. The process that drives the
 sweep stores each record as it arrives, atomically, in ``OUT/points/<id>.json`` (written
 to a temporary file, then ``os.replace``). A point whose file says ``done`` is never run
-again; anything else (missing, failed) is run by the next invocation. The ``id`` hashes the
-point's whole configuration, so a changed base or grid recomputes exactly what changed.
+again; anything else (missing, failed, or stored by a flocking older than
+:data:`RECORD_FORMAT`) is run by the next invocation. The ``id`` hashes the point's whole
+configuration, so a changed base or grid recomputes exactly what changed.
 
 Workers need only the ``flocking`` package: tasks carry plain dicts, records come back as
-plain dicts, and only ``keep_trajectories`` needs a folder the workers can write to.
+plain dicts, and only ``keep_trajectories`` needs a folder the workers can write to. Where
+tasks run is an executor's business (:mod:`flocking.sweep.executors`).
 
 >>> import tempfile
 >>> from flocking.sweep.spec import SweepSpec
 >>> spec = SweepSpec.from_dict({"base": {"n": 30, "density": 1.0, "steps": 20},
 ...                             "grid": {"noise": [0.5, 6.0]}})
 >>> out = tempfile.mkdtemp()
->>> summary = execute(spec, out, serial=True, progress=False)
+>>> summary = execute(spec, out, progress=False)  # in this process
 >>> summary["done"], summary["failed"], summary["skipped"]
 (2, 0, 0)
->>> execute(spec, out, serial=True, progress=False)["skipped"]
+>>> execute(spec, out, progress=False)["skipped"]
 2
+>>> record = PointStore(out).load(spec.points()[0].id)
+>>> sorted(record["errors"]), record["tau"] >= 0.5
+(['binder', 'mean', 'phi2', 'phi4', 'susceptibility'], True)
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import time
@@ -35,6 +41,11 @@ from ..files import write_text
 from .spec import Point, SweepSpec
 
 POINTS = "points"
+#: Version of the records written now: 2 added within-run errors (``errors``, ``tau``,
+#: ``drift``, ``samples``); records without ``format`` are version 1.
+RECORD_FORMAT = 2
+#: The moments a record holds, named as :class:`flocking.analysis.PolarOrder` names them.
+MOMENTS = ("mean", "phi2", "phi4", "susceptibility", "binder")
 
 
 def task_of(point: Point, out: str, spec: SweepSpec, threads: int | None) -> dict[str, Any]:
@@ -64,11 +75,15 @@ def run_point(task: dict[str, Any]) -> dict[str, Any]:
 
 
 def measure(task: dict[str, Any]) -> dict[str, Any]:
-    """Simulate the task's configuration and measure the polar order after the transient."""
+    """Simulate the task's configuration and measure the polar order after the transient:
+    its moments, their within-run errors and the autocorrelation time
+    (:class:`flocking.analysis.PolarOrder`)."""
+    import warnings
+
     import numpy as np
 
+    from ..analysis import PolarOrder
     from ..config import RunConfig
-    from ..observables import polar_moments
     from ..simulation import Simulation
     from ..writers import GSDWriter
 
@@ -86,11 +101,23 @@ def measure(task: dict[str, Any]) -> dict[str, Any]:
         sim.writers.append(GSDWriter(task["trajectory"], every=cfg.every))
     sim.run(cfg.steps)
     phi = np.asarray(sim.polar_order[task["discard"] + 1:])
-    result = {"moments": polar_moments(phi, cfg.model.n), "first_step": sim.step - len(phi) + 1,
-              "steps": cfg.steps, "n": cfg.model.n, "config": cfg.to_toml()}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # not equilibrated: the drift is stored instead
+        op = PolarOrder().compute(phi, n=cfg.model.n)
+    result = {"format": RECORD_FORMAT,
+              "moments": {name: getattr(op, name) for name in MOMENTS},
+              "errors": {name: _finite(getattr(op, name + "_error")) for name in MOMENTS},
+              "tau": op.tau, "drift": _finite(op.drift), "samples": op.samples,
+              "first_step": sim.step - len(phi) + 1, "steps": cfg.steps, "n": cfg.model.n,
+              "config": cfg.to_toml()}
     if task.get("time_series"):
         result["phi"] = phi.tolist()
     return result
+
+
+def _finite(value: float) -> float | None:
+    """JSON has no NaN or infinity: a value that is not finite is stored as ``null``."""
+    return value if math.isfinite(value) else None
 
 
 class PointStore:
@@ -110,36 +137,45 @@ class PointStore:
         except (OSError, ValueError):
             return None
 
-    def is_done(self, point_id: str) -> bool:
+    def state(self, point_id: str) -> str:
+        """``done``, ``outdated`` (done by a flocking that stored no within-run errors),
+        ``failed`` or ``missing``."""
         record = self.load(point_id)
-        return record is not None and record.get("status") == "done"
+        if record is None:
+            return "missing"
+        if record.get("status") != "done":
+            return "failed"
+        return "done" if record.get("format", 1) >= RECORD_FORMAT else "outdated"
+
+    def is_done(self, point_id: str) -> bool:
+        return self.state(point_id) == "done"
 
     def save(self, record: dict[str, Any]) -> None:
         os.makedirs(self.folder, exist_ok=True)
         write_text(self.path(record["id"]), json.dumps(record, indent=1))
 
 
-def execute(spec: SweepSpec, out: str | os.PathLike, *, serial: bool = False, scheduler: str | None = None,
-            workers: int | None = None, progress: bool = True,
+def execute(spec: SweepSpec, out: str | os.PathLike, executor=None, *, progress: bool = True,
             report: Callable[[str], None] = print) -> dict[str, Any]:
-    """Run every point of ``spec`` that ``out`` does not hold yet; return a summary.
+    """Run every point of ``spec`` that ``out`` does not hold yet on ``executor`` (default:
+    :class:`~flocking.sweep.executors.Serial`); return a summary.
 
-    ``serial`` runs in this process; otherwise ``scheduler`` is the address of a running
-    Dask scheduler, or ``None`` for a local cluster of ``workers`` single-threaded worker
-    processes (default: one per core). Interrupting (Ctrl-C) loses only the points in flight.
+    The executor is entered (a cluster started, a scheduler reached) before anything is
+    written, and only if some point is left to run. Interrupting (Ctrl-C) loses only the
+    points in flight.
     """
+    from .executors import Serial
+
+    executor = Serial() if executor is None else executor
     out = os.fspath(out)
     store = PointStore(out)
     points = list({p.id: p for p in spec.points()}.values())
     todo = [p for p in points if not store.is_done(p.id)]
-    os.makedirs(store.folder, exist_ok=True)
-    write_text(os.path.join(out, "sweep.toml"), spec.text)
     summary = {"points": len(points), "skipped": len(points) - len(todo), "done": 0, "failed": 0,
-               "failures": [], "where": "in-process" if serial else scheduler or "local cluster"}
+               "failures": [], "where": executor.where}
     if not todo:
+        write_text(os.path.join(out, "sweep.toml"), spec.text)
         return summary
-    threads = None if serial else 1
-    tasks = [task_of(p, out, spec, threads) for p in todo]
 
     def store_record(record: dict[str, Any]) -> None:
         store.save(record)
@@ -150,55 +186,21 @@ def execute(spec: SweepSpec, out: str | os.PathLike, *, serial: bool = False, sc
             summary["failures"].append(record)
             label = ", ".join(f"{k}={v!r}" for k, v in record["params"].items())
             report(f"flocking sweep: point {record['id']} ({label}, replica={record['replica']}) "
-                   f"failed: {record['error']}")
+                   f"failed: {record['error'].splitlines()[0]}")  # one line each; the record keeps all
 
-    bar = _bar(len(tasks), progress)
-    try:
-        if serial:
-            for task in tasks:
-                store_record(run_point(task))
+    with executor:
+        os.makedirs(store.folder, exist_ok=True)
+        write_text(os.path.join(out, "sweep.toml"), spec.text)
+        summary["where"] = executor.where
+        tasks = [task_of(p, out, spec, executor.threads) for p in todo]
+        bar = _bar(len(tasks), progress)
+        try:
+            for record in executor.records(tasks):
+                store_record(record)
                 bar.update(1)
-        else:
-            _run_dask(tasks, store_record, bar, scheduler, workers, summary)
-    finally:
-        bar.close()
+        finally:
+            bar.close()
     return summary
-
-
-def _run_dask(tasks, store_record, bar, scheduler, workers, summary) -> None:
-    from distributed import Client, LocalCluster, as_completed
-
-    cluster = None
-    if scheduler is None:
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                               processes=True, host="127.0.0.1", dashboard_address=":0",
-                               env={"NUMBA_NUM_THREADS": "1"})
-        client = Client(cluster)
-    else:
-        client = Client(scheduler, timeout="30s")
-    summary["where"] = f"{len(client.scheduler_info()['workers'])} Dask workers at {client.scheduler.address}"
-    by_key = {}
-    try:
-        futures = []
-        for task in tasks:
-            future = client.submit(run_point, task, key=f"flocking-point-{task['id']}", pure=False)
-            by_key[future.key] = task
-            futures.append(future)
-        for future in as_completed(futures):
-            task = by_key[future.key]
-            try:
-                record = future.result()
-            except Exception as err:  # the worker died (KilledWorker) or could not run the task
-                record = {"id": task["id"], "params": task["params"], "replica": task["replica"],
-                          "seed": task["config"]["seed"], "status": "failed",
-                          "error": f"{type(err).__name__}: {err}", "elapsed": float("nan")}
-            future.release()
-            store_record(record)
-            bar.update(1)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 def _bar(total: int, progress: bool):

@@ -178,8 +178,8 @@ class SweepSpec:
             except ParameterError as err:
                 raise ParameterError(f"grid point {_show(params)}: {err}") from None
             discard = self.discard_steps(config.steps)
-            if discard >= config.steps:
-                raise ParameterError(f"sweep.discard: must leave at least one step to measure "
+            if discard > config.steps - 2:  # a mean and its error need two values
+                raise ParameterError(f"sweep.discard: must leave at least two steps to measure "
                                      f"({discard} of steps={config.steps} at {_show(params)})")
             for replica in range(self.replicas):
                 model = config.model.replace(seed=point_seed(self.seed, params, replica))
