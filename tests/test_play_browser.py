@@ -237,7 +237,8 @@ def test_the_page_fits_the_screen(browser, url, tmp_path, width, height):
         assert page.evaluate("document.getElementById('flock').width") == round(flock["width"])
         # phi is the largest number on the page; the plot's ticks are readable at a distance
         sizes = page.evaluate("""() => [...document.querySelectorAll('body *')]
-            .filter((el) => el.offsetParent !== null && [...el.childNodes].some((n) => n.nodeType === 3 && n.textContent.trim()))
+            .filter((el) => el.offsetParent !== null
+                            && [...el.childNodes].some((n) => n.nodeType === 3 && n.textContent.trim()))
             .map((el) => [el.id || el.className || el.tagName, parseFloat(getComputedStyle(el).fontSize)])""")
         phi = font_px(page, "#phi")
         assert all(size < phi for name, size in sizes if name != "phi"), sizes

@@ -28,7 +28,7 @@ from flocking import Model, Simulation, State
 from flocking.cli import main
 from flocking.config import RunConfig
 from flocking.play import session as session_module
-from flocking.play.budget import MiB, session_bytes, step_cost
+from flocking.play.budget import session_bytes, step_cost
 from flocking.play.session import (MAX_ERRORS, MAX_MESSAGE, MAX_N, MAX_STEP_SECONDS, Session, decode_frame,
                                    encode_frame, parse_message)
 
@@ -304,7 +304,8 @@ def test_a_flood_on_a_real_socket_takes_well_under_a_second_of_server_work(serve
                 break
         while True:
             msg = ws.recv(timeout=20)
-            if isinstance(msg, str) and (r := json.loads(msg))["type"] == "state" and r["model"]["noise"] == last["noise"]:
+            r = json.loads(msg) if isinstance(msg, str) else {}
+            if r.get("type") == "state" and r["model"]["noise"] == last["noise"]:
                 break
         work, wall = cpu_seconds(proc.pid) - before, time.monotonic() - start
     print(f"2000 messages: {work:.2f} s of server CPU, {wall:.2f} s wall")
@@ -497,12 +498,13 @@ def test_the_memory_budget_refuses_tabs_and_models_that_do_not_fit():
             assert reply(one, "state")["model"]["n"] == SMALL.n  # still running what ran
             one.send_text('{"type": "step"}')
             assert frame(one)["n"] == SMALL.n
-            assert app.state.budget.held == 2 * tab
+            # (the backend's histograms count numba's threads, which the stepping thread may have lowered)
+            assert app.state.budget.held == pytest.approx(2 * tab, rel=0.05)
         with c.websocket_connect("/ws") as one:  # both closed: their memory came back
             paused(one)
             one.send_text('{"type": "set", "params": {"n": 600}}')
             assert reply(one, "state")["model"]["n"] == 600
-            assert app.state.budget.held == session_bytes(SMALL.replace(n=600))
+            assert app.state.budget.held == pytest.approx(session_bytes(SMALL.replace(n=600)), rel=0.05)
 
 
 @pytest.mark.parametrize("model", [Model(n=100_000, density=2.0, delay=5), Model(dim=3, n=50_000, density=1.0)],
@@ -701,7 +703,8 @@ def test_step_cost_counts_each_neighbouring_cell_once(dim):
             count[c] = count.get(c, 0) + 1
         expected = 0
         for c, k in count.items():
-            around = {tuple((c[a] + o[a]) % nc[a] for a in range(dim)) for o in itertools.product((-1, 0, 1), repeat=dim)}
+            offsets = itertools.product((-1, 0, 1), repeat=dim)
+            around = {tuple((c[a] + o[a]) % nc[a] for a in range(dim)) for o in offsets}
             expected += k * sum(count.get(b, 0) for b in around)
         assert step_cost(model, positions)[1] == expected / model.n
 

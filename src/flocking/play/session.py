@@ -72,7 +72,7 @@ from ..config import RunConfig
 from ..model import Model, ParameterError
 from ..simulation import Simulation
 from ..state import State, initial_speeds
-from .budget import Budget, kernel, session_bytes, step_cost
+from .budget import Budget, session_bytes, step_cost
 
 #: Limits that keep one tab from taking the machine down.
 MAX_N = 200_000
@@ -250,6 +250,7 @@ class Session:
         except BaseException:
             self.budget.leave(self)
             raise
+        self._model, self._step = model, state.step  # what runs, for the event loop's side
         self._priced = time.monotonic()
         self._target, self._reset, self._steps = model, None, 0  # what received messages ask for
         self.phi = state.polar_order()
@@ -257,7 +258,8 @@ class Session:
 
     @property
     def model(self) -> Model:
-        return self.sim.model
+        """The model that runs (the event loop reads this while the simulation is rebuilt)."""
+        return self._model
 
     # -- the event loop's side ------------------------------------------------------------
 
@@ -313,7 +315,7 @@ class Session:
     def config_toml(self, model: Model | None = None, init: str | None = None) -> str:
         """The parameters as a file that ``flocking run --config`` accepts."""
         cfg = RunConfig(model or self.model, init=init or self.init)
-        return f"# exported from flocking play at step {self.sim.step}\n" + cfg.to_toml()
+        return f"# exported from flocking play at step {self._step}\n" + cfg.to_toml()
 
     def _error(self, message: str) -> None:
         with self._lock:
@@ -435,6 +437,7 @@ class Session:
             return False
         self.sim = None  # the old simulation's memory goes before the new one's comes
         self.sim = Simulation(target, state, backend="cpu")
+        self._model, self._step = target, state.step
         self.init, self.step_seconds, self._priced = init, seconds, time.monotonic()
         if fresh:
             self.broken = None
@@ -457,10 +460,11 @@ class Session:
             if self.closed or (done and self.pending()):
                 break
             phi = float(self.sim.backend.advance(1)[0])
+            self._step += 1
             done += 1
             if not math.isfinite(phi):
                 self.running = False
-                self.broken = self.sim.step
+                self.broken = self._step
                 self._want_state = True
                 self._error(f"the flock became non-finite at step {self.broken} (phi = {phi}); paused: reset it")
                 break
