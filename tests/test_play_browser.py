@@ -292,8 +292,6 @@ def test_a_refused_tab_says_why_and_its_controls_look_disabled(browser, small_se
         for control in ("#play", "#noise", "#n", "#export"):
             assert second.is_disabled(control), control
         assert float(second.evaluate("getComputedStyle(document.querySelector('.panel')).opacity")) < 0.6
-        second.wait_for_timeout(9000)  # longer than an error message stays
-        assert second.inner_text("#message") == message
         first.close()  # its memory comes back: the refused tab gets in on a reload
         second.reload()
         second.wait_for_function("window.flockPlay && flockPlay.frames > 2 && !flockPlay.refused", timeout=30_000)
