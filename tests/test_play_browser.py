@@ -28,10 +28,10 @@ ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-net
         "--disable-component-update", "--disable-sync", "--no-first-run"]
 
 
-@pytest.fixture(scope="module")
-def url():
-    proc = subprocess.Popen([sys.executable, "-m", "flocking", "play", "--port", "0", "--no-browser",
-                             "--n", "2000", "--noise", "0.5"], env=ENV, stderr=subprocess.PIPE, text=True)
+def serve(*options):
+    """``flocking play`` with ``options`` in a subprocess; yields its address."""
+    proc = subprocess.Popen([sys.executable, "-m", "flocking", "play", "--port", "0", "--no-browser", *options],
+                            env=ENV, stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stderr.readline()
         match = re.search(r"http://127\.0\.0\.1:\d+/", line)
@@ -40,6 +40,11 @@ def url():
     finally:
         proc.terminate()
         proc.wait(timeout=20)
+
+
+@pytest.fixture(scope="module")
+def url():
+    yield from serve("--n", "2000", "--noise", "0.5")
 
 
 @pytest.fixture(scope="module")
@@ -83,8 +88,8 @@ def test_page_draws_the_flock(page):
     assert page.title() == "flocking play"
     assert page.evaluate("flockPlay.n") == 2000
     assert 0.01 < lit_fraction(page) < 0.9  # particles, not an empty or a blank canvas
-    assert re.search(r"step \d+ · φ = 0\.\d{3} · N = 2000", page.inner_text("#readout").replace("\u00a0", " ")
-                     .replace("   ", " "))
+    assert re.fullmatch(r"0\.\d{3}", page.inner_text("#phi"))
+    assert re.search(r"step \d+ · N = 2000 · box 31\.6 × 31\.6", page.inner_text("#readout").replace("   ", " "))
 
 
 def test_noise_slider_dissolves_the_flock(page):
@@ -178,3 +183,118 @@ def test_ten_thousand_particles_stream_at_30_frames_per_second(page):
     drawn = page.evaluate("flockPlay.fps")
     print(f"10^4 particles, 2D: {max(rates):.1f} frames/s received, {drawn:.1f} drawn")
     assert max(rates) >= 30
+
+
+# -- on a projector, a laptop and a phone -------------------------------------------------
+
+SCREENS = [(1366, 768), (1920, 1080), (390, 844)]
+
+
+def visible_boxes(page, selector):
+    """``[(description, {x, y, width, height})]`` of the visible elements matching ``selector``."""
+    return page.evaluate("""(selector) => [...document.querySelectorAll(selector)]
+        .filter((el) => el.offsetParent !== null || el.tagName === 'CANVAS')
+        .map((el) => {
+            const r = el.getBoundingClientRect();
+            return [el.id || el.name || el.textContent.trim().slice(0, 20) || el.tagName,
+                    { x: r.x, y: r.y, width: r.width, height: r.height }];
+        })""", selector)
+
+
+def font_px(page, selector):
+    return page.evaluate(f"parseFloat(getComputedStyle(document.querySelector('{selector}')).fontSize)")
+
+
+@pytest.mark.parametrize("width, height", SCREENS, ids=[f"{w}x{h}" for w, h in SCREENS])
+def test_the_page_fits_the_screen(browser, url, tmp_path, width, height):
+    context = browser.new_context(viewport={"width": width, "height": height}, bypass_csp=True)
+    page = context.new_page()
+    try:
+        page.goto(url)
+        page.wait_for_function("window.flockPlay && flockPlay.frames > 20 && flockPlay.model", timeout=30_000)
+        page.wait_for_timeout(300)
+        page.screenshot(path=tmp_path / f"play-{width}x{height}.png")
+        print(f"screenshot: {tmp_path / f'play-{width}x{height}.png'}")
+        scroll = page.evaluate("[document.documentElement.scrollWidth, document.documentElement.scrollHeight]")
+        flock = page.locator("#flock").bounding_box()
+        controls = visible_boxes(page, "#controls input, #controls select, #controls button, #phi, #plot")
+        assert len(controls) >= 15
+        assert scroll[0] <= width  # nothing sticks out sideways
+        if width > height:
+            # a laptop or a projector: one screen, no scrolling, the flock as tall as the screen allows
+            assert scroll[1] <= height
+            for name, box in controls:
+                assert box["x"] >= 0 and box["y"] >= 0, name
+                assert box["x"] + box["width"] <= width + 0.5 and box["y"] + box["height"] <= height + 0.5, name
+            assert flock["height"] >= 0.9 * height and flock["width"] == pytest.approx(flock["height"], abs=1)
+            assert flock["width"] * flock["height"] >= 0.45 * width * height
+        else:
+            # a phone: the flock as wide as the screen, the rest below it
+            assert flock["width"] >= 0.9 * width and flock["x"] >= 0 and flock["x"] + flock["width"] <= width
+            for name, box in controls:
+                assert box["x"] >= 0 and box["x"] + box["width"] <= width + 0.5, name
+        # the backing store matches the size on screen: drawn sharp, not stretched
+        assert page.evaluate("document.getElementById('flock').width") == round(flock["width"])
+        # phi is the largest number on the page; the plot's ticks are readable at a distance
+        sizes = page.evaluate("""() => [...document.querySelectorAll('body *')]
+            .filter((el) => el.offsetParent !== null
+                            && [...el.childNodes].some((n) => n.nodeType === 3 && n.textContent.trim()))
+            .map((el) => [el.id || el.className || el.tagName, parseFloat(getComputedStyle(el).fontSize)])""")
+        phi = font_px(page, "#phi")
+        assert all(size < phi for name, size in sizes if name != "phi"), sizes
+        assert phi >= 2.5 * font_px(page, "body")
+        assert page.evaluate("flockPlay.plot.tickPx") >= 14
+    finally:
+        context.close()
+
+
+def test_labels_say_what_a_class_needs(page):
+    assert page.inner_text("#wheel-caption") == "colour = heading"
+    assert page.inner_text("#noise-scale").split() == ["0:", "none", "π", "2π:", "random"]
+    assert page.inner_text("#radius-hint") == "how far a particle sees: the box is 32 R wide"
+    assert page.inner_text("#speed-hint") == "distance moved per step: crossing the box takes 63 steps"
+    hints = page.locator("#controls .hint:visible")
+    assert hints.count() >= 7  # each slider says what it changes
+    page.focus("#radius")
+    page.keyboard.press("End")  # R = 4
+    page.wait_for_function("flockPlay.model.radius === 4")
+    assert page.inner_text("#radius-hint") == "how far a particle sees: the box is 7.9 R wide"
+    page.check('input[name="noise_type"][value="vectorial"]')
+    page.wait_for_function("flockPlay.model.noise_type === 'vectorial'")
+    assert page.inner_text("#noise-scale").split() == ["0:", "none", "1", "2"]
+    page.check('input[name="dim"][value="3"]')
+    page.wait_for_function("flockPlay.dim === 3")
+    assert page.inner_text("#wheel-caption") == "colour = heading, seen from above"
+
+
+@pytest.fixture(scope="module")
+def small_server():
+    """A server whose memory holds one tab of 3000 particles, not two."""
+    yield from serve("--n", "3000", "--max-memory", "1")
+
+
+def test_a_refused_tab_says_why_and_its_controls_look_disabled(browser, small_server, tmp_path):
+    context = browser.new_context(viewport={"width": 1366, "height": 768}, bypass_csp=True)
+    try:
+        first = context.new_page()
+        first.goto(small_server)
+        first.wait_for_function("window.flockPlay && flockPlay.frames > 2", timeout=30_000)
+        second = context.new_page()
+        second.goto(small_server)
+        second.wait_for_function("window.flockPlay && flockPlay.refused", timeout=30_000)
+        second.wait_for_function("document.body.classList.contains('offline')")
+        second.screenshot(path=tmp_path / "refused-1366x768.png")
+        print(f"screenshot: {tmp_path / 'refused-1366x768.png'}")
+        message = second.inner_text("#message")
+        assert message.startswith("The server refused this tab: no memory left for another tab: it needs")
+        assert "The server is still running" in message and "Start `flocking play` again" not in message
+        assert second.inner_text("#readout") == "refused by the server"
+        for control in ("#play", "#noise", "#n", "#export"):
+            assert second.is_disabled(control), control
+        assert float(second.evaluate("getComputedStyle(document.querySelector('.panel')).opacity")) < 0.6
+        first.close()  # its memory comes back: the refused tab gets in on a reload
+        second.reload()
+        second.wait_for_function("window.flockPlay && flockPlay.frames > 2 && !flockPlay.refused", timeout=30_000)
+        assert not second.is_disabled("#play")
+    finally:
+        context.close()

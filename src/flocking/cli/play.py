@@ -8,6 +8,7 @@ import webbrowser
 import click
 
 from ..model import DEFAULT_DENSITY, Model, ParameterError
+from ..play.budget import DEFAULT_MEMORY, MiB
 from .run import model_options
 
 #: what a new tab shows unless options say otherwise: a flock that orders within seconds
@@ -22,11 +23,14 @@ EXTRA = "flocking play needs its web extra: pip install 'flocking[play]'"
 @click.option("--port", type=click.IntRange(0, 65535), default=8765, show_default=True,
               help="Port to listen on; 0 picks a free one.")
 @click.option("--no-browser", is_flag=True, help="Print the address instead of opening a browser.")
-def play(host, port, no_browser, **options):
+@click.option("--max-memory", type=click.IntRange(1), default=DEFAULT_MEMORY // MiB, show_default=True,
+              metavar="MIB", help="Memory that all tabs share, in MiB; a tab or a model that does not fit is refused.")
+def play(host, port, no_browser, max_memory, **options):
     """Run a flock on this machine and watch and steer it in the browser.
 
     Every browser tab gets its own simulation (the cpu backend); its sliders change the
-    running simulation. The options set what a new tab starts with.
+    running simulation. The options set what a new tab starts with. Ctrl+C stops the
+    server.
 
     \b
     Examples:
@@ -38,10 +42,10 @@ def play(host, port, no_browser, **options):
         import uvicorn
 
         from ..play.server import create_app
-        from ..play.session import check_limits
     except ImportError:
         raise click.ClickException(EXTRA) from None
-    model = check_limits(Model(**initial_parameters(options)))
+    model = Model(**initial_parameters(options))
+    app = create_app(model, memory=max_memory * MiB)  # refuses what a tab could not run
     sock = listen(host, port)
     address = sock.getsockname()
     url = f"http://{_url_host(address[0])}:{address[1]}/"
@@ -54,8 +58,12 @@ def play(host, port, no_browser, **options):
     from uvicorn.config import WS_PROTOCOLS
 
     ws = "websockets-sansio" if "websockets-sansio" in WS_PROTOCOLS else "websockets"
-    config = uvicorn.Config(create_app(model), ws=ws, ws_max_size=65536, log_level="warning", lifespan="off")
-    uvicorn.Server(config).run(sockets=[sock])
+    config = uvicorn.Config(app, ws=ws, ws_max_size=65536, log_level="warning", lifespan="off")
+    try:
+        uvicorn.Server(config).run(sockets=[sock])
+    except KeyboardInterrupt:  # uvicorn has closed every tab; it raises the signal again
+        pass
+    click.echo("flocking play: stopped; goodbye", err=True)
 
 
 def initial_parameters(options: dict) -> dict:

@@ -4,20 +4,29 @@
 opens ``/ws``, a WebSocket on which it sends JSON control messages and receives binary
 frames (see :mod:`flocking.play.session`).
 
-Each socket gets its own :class:`~flocking.play.session.Session` and two tasks: one
-receives and applies control messages, the other steps the simulation and is the only
-one that sends (replies first, then the frame), at most ``fps`` frames a second. An
-``asyncio.Lock`` keeps a step and a parameter change from overlapping. When the tab
-closes, the stepping task is cancelled and the session dropped.
+Each socket gets its own :class:`~flocking.play.session.Session` and two tasks. One
+receives messages and hands them to the session, which checks them at once; the other is
+the only one that touches the simulation and the only one that sends: in a worker thread
+it applies what was received and takes a frame's steps (:meth:`Session.work`), then sends
+the replies and the frame, at most ``fps`` frames a second. When the tab closes, the
+session is closed (its steps stop within one step) and the stepping task cancelled.
+
+All tabs share one :class:`~flocking.play.budget.Budget`: at most ``max_sessions`` tabs,
+``memory`` bytes for all of them, and ``cores``: each running tab steps at most its equal
+share, so its frames come at most as often as the estimated cost of a frame's steps
+allows. A tab the budget cannot take is told why (``{"type": "refused", "message":
+...}``) and its socket closed with code 1013 ("try again later"); the server goes on.
 
 A socket whose ``Origin`` is another site is refused, so a web page elsewhere cannot
-drive the simulation on this machine; at most ``max_sessions`` tabs run at once.
+drive the simulation on this machine.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
+import logging
 import pathlib
 from urllib.parse import urlsplit
 
@@ -27,8 +36,10 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from ..model import Model
-from .session import Session, check_limits
+from ..model import Model, ParameterError
+from ..state import State
+from .budget import DEFAULT_MEMORY, Budget
+from .session import Session, check_limits, check_step
 
 STATIC = pathlib.Path(__file__).parent / "static"
 #: the page needs nothing from elsewhere
@@ -36,11 +47,17 @@ HEADERS = {
     "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'",
     "Cache-Control": "no-cache",
 }
+TRY_LATER = 1013  # WebSocket close code: the server is busy, try again later
 
 
-def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16) -> Starlette:
-    """The Starlette app; every new tab starts from ``model`` (a random state)."""
-    check_limits(model)
+def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16, memory: int = DEFAULT_MEMORY,
+               cores: float | None = None) -> Starlette:
+    """The Starlette app; every new tab starts from ``model`` (a random state).
+
+    ``memory`` (bytes) and ``cores`` (default: numba's threads) are what all tabs share.
+    """
+    check_step(check_limits(model), State.random(model).positions, "radius" if model.neighbours == "metric" else "k")
+    budget = Budget(memory=memory, cores=cores, tabs=max_sessions)
     sessions: dict[Session, asyncio.Task] = {}  # each tab's session and its stepping task
 
     async def index(request):
@@ -51,14 +68,14 @@ def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16) -> St
             await ws.close(code=1008)
             return
         await ws.accept()
-        if len(sessions) >= max_sessions:
-            await ws.send_text(json.dumps({"type": "error", "message":
-                                           f"too many open tabs (at most {max_sessions}); close one"}))
-            await ws.close(code=1013)
+        try:
+            session = await asyncio.to_thread(Session, model, budget=budget)
+        except ParameterError as err:
+            await ws.send_text(json.dumps({"type": "refused", "message": str(err)}))
+            await ws.close(code=TRY_LATER)
             return
-        session = Session(model)
-        lock, wake = asyncio.Lock(), asyncio.Event()
-        stepping = asyncio.create_task(stream(ws, session, lock, wake, 1.0 / fps))
+        wake = asyncio.Event()
+        stepping = asyncio.create_task(stream(ws, session, wake, 1.0 / fps))
         sessions[session] = stepping
         try:
             while True:
@@ -68,12 +85,12 @@ def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16) -> St
                 raw = message.get("text")
                 if raw is None:
                     raw = message.get("bytes") or b""
-                async with lock:
-                    await asyncio.to_thread(session.handle, raw)
+                session.receive(raw)
                 wake.set()
         except WebSocketDisconnect:
             pass
         finally:  # no await before the cleanup: this task may itself be cancelled
+            session.close()
             del sessions[session]
             stepping.cancel()
 
@@ -83,31 +100,57 @@ def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16) -> St
         WebSocketRoute("/ws", socket),
     ])
     app.state.sessions = sessions
+    app.state.budget = budget
     return app
 
 
-async def stream(ws: WebSocket, session: Session, lock: asyncio.Lock, wake: asyncio.Event,
-                 period: float) -> None:
-    """Step while running, send replies and frames; wait for a message while paused."""
+async def stream(ws: WebSocket, session: Session, wake: asyncio.Event, period: float) -> None:
+    """Apply messages and step while running, send replies and frames. Messages are
+    applied at most once a ``period``, however fast they come; a frame's steps are taken
+    when it is due: after ``period``, or longer to keep within the tab's share of the cores."""
     loop = asyncio.get_running_loop()
+    due = apply = loop.time()
     while True:
-        start = loop.time()
-        async with lock:
-            if session.running:
-                await asyncio.to_thread(session.advance)
-            replies, frame = session.take_replies(), session.take_frame()
-        try:
-            for reply in replies:
-                await ws.send_text(json.dumps(reply))
-            if frame is not None:
-                await ws.send_bytes(frame)
-        except (WebSocketDisconnect, RuntimeError, OSError):
-            return  # the tab went away; the receiving task ends the session
-        if session.running:
-            await asyncio.sleep(max(0.0, period - (loop.time() - start)))
-        else:
-            await wake.wait()
         wake.clear()
+        now = loop.time()
+        step = session.running and now >= due
+        if step or (session.pending() and now >= apply):
+            try:
+                await asyncio.to_thread(session.work, step)
+            except Exception as err:  # a bug costs this tab, not the server
+                logging.getLogger("flocking.play").exception("a tab's simulation failed")
+                if await send(ws, {"type": "refused", "message": f"internal error ({type(err).__name__}); "
+                                                                  f"reload the page"}):
+                    with contextlib.suppress(RuntimeError, OSError):
+                        await ws.close(code=1011)
+                return
+            apply = now + period
+            if step:
+                due = now + max(period, session.frame_seconds / session.budget.share())
+        for reply in session.take_replies():
+            if not await send(ws, reply):
+                return  # the tab went away; the receiving task ends the session
+        frame = session.take_frame()
+        if frame is not None and not await send(ws, frame):
+            return
+        wakes = [t for t, waiting in ((due, session.running), (apply, session.pending())) if waiting]
+        timeout = max(0.0, min(wakes) - loop.time()) if wakes else None
+        try:
+            await asyncio.wait_for(wake.wait(), timeout)
+        except TimeoutError:
+            pass
+
+
+async def send(ws: WebSocket, message: dict | bytes) -> bool:
+    """Send a JSON reply or a frame; ``False`` if the tab has gone."""
+    try:
+        if isinstance(message, bytes):
+            await ws.send_bytes(message)
+        else:
+            await ws.send_text(json.dumps(message))
+    except (WebSocketDisconnect, RuntimeError, OSError):
+        return False
+    return True
 
 
 def same_origin(origin: str | None, host: str | None) -> bool:

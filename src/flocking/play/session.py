@@ -15,11 +15,25 @@ A page talks to its :class:`Session` in small JSON objects, each with a ``type``
 ``config``             asks for the settings as a ``flocking run --config`` TOML file
 =====================  =================================================================
 
-Every message is checked before anything changes: size, JSON, the keys of its type, and
-the parameters by building a :class:`~flocking.Model` and the limits of :func:`check_limits`.
-A refused message leaves the simulation as it was and answers
-``{"type": "error", "message": "..."}``. Accepted changes answer with ``{"type": "state",
-...}`` so that the page shows what the server really runs.
+The server hands each message to :meth:`Session.receive` as it arrives, which checks it
+(size, JSON, the keys of its type, the parameters by building a :class:`~flocking.Model`
+and the limits of :func:`check_limits`) and answers a refused one with ``{"type":
+"error", "message": "..."}``, changing nothing (a refused ``set`` is followed by the state,
+so that the page's controls go back to what runs). Accepted changes wait for the stepping
+thread's next :meth:`Session.work`, which applies all of them at once: however many
+``set`` messages came since the last frame, the simulation is rebuilt once, with the
+latest value of each parameter, and pending steps before a ``reset`` are dropped. Then a
+``{"type": "state", ...}`` reply says what the server really runs. So a flood of messages
+costs their checks (about 0.1 ms each), not a rebuild each. Error replies beyond
+:data:`MAX_ERRORS` per frame are counted in one last error; ``config`` answers are never
+dropped silently.
+
+Before a model runs, the cost of its step is estimated from where the particles are
+(:func:`~flocking.play.budget.step_cost`), and again while it runs: a model whose step
+would take more than :data:`MAX_STEP_SECONDS` is refused, and a flock that crowds until
+its step would is paused with a message. So is a flock that turns non-finite. Steps are
+taken one at a time, so a closed tab (:meth:`Session.close`) stops within one step.
+Memory comes from the server's :class:`~flocking.play.budget.Budget`.
 
 Frames (:func:`encode_frame`) are little-endian: a 36-byte header (``b"FLK1"``, dim,
 flags, 2 spare bytes, N as uint32, the step as float64, the polar order and the three box
@@ -32,8 +46,8 @@ azimuth and a ``z`` byte per particle in 3D.
 >>> [reply["type"] for reply in s.take_replies()]  # the page learns the settings first
 ['state']
 >>> s.handle('{"type": "set", "params": {"noise": 9}}')
->>> s.take_replies()
-[{'type': 'error', 'message': 'noise: must be in [0, 2*pi] for angular noise (got 9.0)'}]
+>>> [reply.get("message", reply["type"]) for reply in s.take_replies()]  # the state puts the slider back
+['noise: must be in [0, 2*pi] for angular noise (got 9.0)', 'state']
 >>> s.handle('{"type": "step"}')
 >>> f = decode_frame(s.take_frame())
 >>> f["step"], f["n"], f["positions"].shape
@@ -42,11 +56,13 @@ azimuth and a ``z`` byte per particle in 3D.
 
 from __future__ import annotations
 
-import collections
 import json
 import logging
 import math
 import struct
+import sys
+import threading
+import time
 from typing import Any
 
 import numba
@@ -56,6 +72,7 @@ from ..config import RunConfig
 from ..model import Model, ParameterError
 from ..simulation import Simulation
 from ..state import State, initial_speeds
+from .budget import Budget, session_bytes, step_cost
 
 #: Limits that keep one tab from taking the machine down.
 MAX_N = 200_000
@@ -63,10 +80,20 @@ MAX_K = 64
 MAX_DELAY = 100
 MAX_STEPS_PER_FRAME = 50
 MAX_MESSAGE = 4096  # characters of one control message
-#: neighbour candidates visited per step (N times the particles in the 3^d cells around one)
-MAX_WORK = 2e8
 #: bytes of the delay ring buffer (delay x N x (d + 1) doubles)
 MAX_DELAY_BYTES = 2**28
+#: vectorial noise above this is refused: at 10 the noise term is already ten times the
+#: largest sum of headings it is added to
+MAX_VECTORIAL_NOISE = 10.0
+#: estimated seconds of one step (:func:`~flocking.play.budget.step_cost`); a model or a
+#: flock that would step slower is refused or paused
+MAX_STEP_SECONDS = 0.5
+#: a running flock's step is priced again after this many seconds
+PRICE_EVERY = 0.25
+#: error replies kept per frame; the rest are counted in one more
+MAX_ERRORS = 16
+#: config answers that may wait; more are refused, with an error
+MAX_CONFIGS = 16
 
 #: below this many particles a frame's steps run on one thread: a parallel step is then too
 #: short to pay for waking threads, and far slower when other programs keep the cores busy
@@ -86,6 +113,9 @@ MESSAGES: dict[str, dict[str, tuple[tuple[type, ...], bool]]] = {
     "config": {},
 }
 INITS = ("random", "aligned")
+#: the parameter a refusal names, first of those that changed: for a slow step, for memory
+SLOW = ("radius", "k", "n", "density", "dim", "neighbours")
+LARGE = ("n", "delay", "dim", "density", "speeds")
 
 HEADER = struct.Struct("<4sBBHIdf3f")
 MAGIC = b"FLK1"
@@ -118,12 +148,12 @@ def parse_message(raw: str | bytes) -> dict[str, Any]:
         raise ProtocolError(f"a message must be a JSON object with a 'type' (got {type(msg).__name__})")
     kind = msg.get("type")
     if not isinstance(kind, str) or kind not in MESSAGES:
-        raise ProtocolError(f"type: must be one of {', '.join(MESSAGES)} (got {kind!r})")
+        raise ProtocolError(f"type: must be one of {', '.join(MESSAGES)} (got {str(kind)[:40]!r})")
     fields = MESSAGES[kind]
     for key in msg:
         if key != "type" and key not in fields:
             allowed = ", ".join(("type", *fields))
-            raise ProtocolError(f"{kind}: unknown field {key!r} (allowed: {allowed})")
+            raise ProtocolError(f"{kind}: unknown field {key[:40]!r} (allowed: {allowed})")
     for key, (types, required) in fields.items():
         if key not in msg:
             if required:
@@ -138,12 +168,16 @@ def _no_constant(name: str) -> None:
 
 
 def check_limits(model: Model) -> Model:
-    """Refuse models that would take too much memory or time for an interactive page.
+    """Refuse models too large for an interactive page, before anything is allocated.
 
     >>> check_limits(Model(n=10**6, density=2.0))
     Traceback (most recent call last):
     ...
     flocking.model.ParameterError: n: must be at most 200000 in flocking play (got 1000000)
+    >>> check_limits(Model(n=100, box=10.0, speed=6.0))
+    Traceback (most recent call last):
+    ...
+    flocking.model.ParameterError: speed: v0 dt must be at most half the box side, 5, in flocking play (got 6)
     """
     if model.n > MAX_N:
         raise ParameterError(f"n: must be at most {MAX_N} in flocking play (got {model.n})")
@@ -154,69 +188,122 @@ def check_limits(model: Model) -> Model:
     if model.delay * model.n * (model.dim + 1) * 8 > MAX_DELAY_BYTES:
         raise ParameterError(f"delay: {model.delay} steps of history for {model.n} particles is too "
                              f"much memory; lower delay or n")
-    if model.neighbours == "metric":
-        reach = min(model.n, model.density * (3.0 * model.radius) ** model.dim)
-        if model.n * reach > MAX_WORK:
-            raise ParameterError(f"radius: {model.radius:g} gives too many neighbours for {model.n} "
-                                 f"particles at density {model.density:g}; lower radius, n or density")
+    if model.noise_type == "vectorial" and model.noise > MAX_VECTORIAL_NOISE:
+        raise ParameterError(f"noise: must be at most {MAX_VECTORIAL_NOISE:g} for vectorial noise in "
+                             f"flocking play (got {model.noise:g})")
+    half = min(model.box) / 2
+    if not model.speed * model.dt <= half:
+        raise ParameterError(f"speed: v0 dt must be at most half the box side, {half:.3g}, in flocking play "
+                             f"(got {model.speed * model.dt:.3g})")
     return model
+
+
+def check_step(model: Model, positions: np.ndarray, name: str = "n") -> float:
+    """The estimated seconds of a step from ``positions``, or a :class:`ParameterError`
+    about parameter ``name`` if that is more than :data:`MAX_STEP_SECONDS`.
+
+    >>> check_step(Model(n=6000, density=2.0, radius=30.0), np.full((6000, 2), 1.0), "radius")
+    Traceback (most recent call last):
+    ...
+    flocking.model.ParameterError: radius: one step would take about 0.9 s here (6000 neighbour candidates a particle; at most 0.5 s in flocking play); lower radius, n or density
+    """
+    seconds, candidates = step_cost(model, positions)
+    if seconds > MAX_STEP_SECONDS:
+        lower = "k or n" if model.neighbours == "topological" else "radius, n or density"
+        raise ParameterError(f"{name}: one step would take about {seconds:.2g} s here ({candidates:.0f} "
+                             f"neighbour candidates a particle; at most {MAX_STEP_SECONDS:g} s in flocking "
+                             f"play); lower {lower}")
+    return seconds
 
 
 class Session:
     """A simulation that a page steers: the model, the live state, and what to send back.
 
-    The server calls :meth:`handle` for each message, :meth:`advance` while running, and
-    sends :meth:`take_replies` and :meth:`take_frame`; nothing here touches a socket.
+    The server calls :meth:`receive` for each message (cheap, on its event loop), and
+    from a worker thread :meth:`work`, which applies what was received and takes a
+    frame's steps; it sends :meth:`take_replies` and :meth:`take_frame`, and calls
+    :meth:`close` when the tab goes. ``budget`` is the server's; a session without one
+    has no memory or tab limit. Nothing here touches a socket.
     """
 
-    def __init__(self, model: Model, init: str = "random"):
+    def __init__(self, model: Model, init: str = "random", budget: Budget | None = None):
+        self.budget = budget or Budget(memory=sys.maxsize, tabs=sys.maxsize)
         self.init = init
         self.running = True
         self.steps_per_frame = 1
-        self.phi = 0.0
-        self._replies: collections.deque[dict[str, Any]] = collections.deque(maxlen=64)
-        self._dirty = True
-        self._start(check_limits(model))
-        self._replies.append(self.describe())
-
-    # -- what the server calls ------------------------------------------------------------
-
-    def handle(self, raw: str | bytes) -> None:
-        """Apply one control message, or queue an error reply and change nothing."""
+        self.closed = False
+        self.broken: int | None = None  # the step at which the flock became non-finite
+        self.step_seconds = 0.0  # the estimated cost of one step of the current flock
+        self.frame_seconds = 0.0  # the estimated cost of the last frame's steps
+        self._lock = threading.Lock()  # receive() and work() run on different threads
+        self._replies: list[dict[str, Any]] = []
+        self._refused = 0  # errors beyond MAX_ERRORS since the last take_replies
+        self._configs = 0
+        self._want_state = True
+        self._frame: bytes | None = None
+        model = check_limits(model)
+        self.budget.join(self, session_bytes(model))  # first: a refused tab costs nothing
         try:
-            msg = parse_message(raw)
-            reply = getattr(self, "_on_" + msg["type"])(msg)
-        except (ProtocolError, ParameterError) as err:
-            self._replies.append({"type": "error", "message": str(err)})
-            return
-        except Exception as err:  # a bug must cost this message, not the server
-            logging.getLogger("flocking.play").exception("control message failed: %.200r", raw)
-            self._replies.append({"type": "error", "message": f"internal error ({type(err).__name__})"})
-            return
-        self._replies.append(reply or self.describe())
-
-    def advance(self) -> None:
-        """``steps_per_frame`` steps of the running simulation."""
-        numba.set_num_threads(1 if self.model.n < SERIAL_BELOW else numba.config.NUMBA_NUM_THREADS)
-        phi = self.sim.backend.advance(self.steps_per_frame)
-        self.phi = float(phi[-1])
-        self._dirty = True
-
-    def take_replies(self) -> list[dict[str, Any]]:
-        replies = list(self._replies)
-        self._replies.clear()
-        return replies
-
-    def take_frame(self) -> bytes | None:
-        """The current frame if anything changed since the last one, else ``None``."""
-        if not self._dirty:
-            return None
-        self._dirty = False
-        return encode_frame(self.sim.state, self.model, self.phi, self.running)
+            state = self._new_state(model, init)
+            self.step_seconds = check_step(model, state.positions)
+            self.sim = Simulation(model, state, backend="cpu")
+        except BaseException:
+            self.budget.leave(self)
+            raise
+        self._model, self._step = model, state.step  # what runs, for the event loop's side
+        self._priced = time.monotonic()
+        self._target, self._reset, self._steps = model, None, 0  # what received messages ask for
+        self.phi = state.polar_order()
+        self._encode(state)
 
     @property
     def model(self) -> Model:
-        return self.sim.model
+        """The model that runs (the event loop reads this while the simulation is rebuilt)."""
+        return self._model
+
+    # -- the event loop's side ------------------------------------------------------------
+
+    def receive(self, raw: str | bytes) -> None:
+        """Check one control message and queue what it asks, or queue an error reply."""
+        try:
+            msg = parse_message(raw)
+            with self._lock:
+                getattr(self, "_on_" + msg["type"])(msg)
+        except (ProtocolError, ParameterError) as err:
+            self._error(str(err))
+        except Exception as err:  # a bug must cost this message, not the server
+            logging.getLogger("flocking.play").exception("control message failed: %.200r", raw)
+            self._error(f"internal error ({type(err).__name__})")
+
+    def pending(self) -> bool:
+        """Whether received messages wait for :meth:`work`."""
+        return self._target is not self.model or self._reset is not None or self._steps > 0
+
+    def take_replies(self) -> list[dict[str, Any]]:
+        """Replies to send, in order; the ``state`` reply once nothing waits to be applied."""
+        with self._lock:
+            replies, self._replies, self._configs = self._replies, [], 0
+            if self._refused:
+                replies.append({"type": "error", "message": f"... and {self._refused} more messages were refused"})
+                self._refused = 0
+            if self._want_state and not self.pending():
+                replies.append(self.describe())
+                self._want_state = False
+        return replies
+
+    def take_frame(self) -> bytes | None:
+        """The newest frame if there is one not yet taken, else ``None``."""
+        with self._lock:
+            frame, self._frame = self._frame, None
+        if frame is None:
+            return None
+        flags = RUNNING if self.running else 0  # as it is now, not when the frame was made
+        return frame[:5] + bytes([flags]) + frame[6:]
+
+    def close(self) -> None:
+        """The tab is gone: stop stepping (within one step) and give the memory back."""
+        self.closed = True
+        self.budget.leave(self)
 
     def describe(self) -> dict[str, Any]:
         """What the page shows in its controls."""
@@ -225,69 +312,173 @@ class Session:
                 "limits": {"n": MAX_N, "k": MAX_K, "delay": MAX_DELAY,
                            "steps_per_frame": MAX_STEPS_PER_FRAME}}
 
-    def config_toml(self) -> str:
-        """The current parameters as a file that ``flocking run --config`` accepts."""
-        cfg = RunConfig(self.model, init=self.init)
-        return f"# exported from flocking play at step {self.sim.step}\n" + cfg.to_toml()
+    def config_toml(self, model: Model | None = None, init: str | None = None) -> str:
+        """The parameters as a file that ``flocking run --config`` accepts."""
+        cfg = RunConfig(model or self.model, init=init or self.init)
+        return f"# exported from flocking play at step {self._step}\n" + cfg.to_toml()
 
-    # -- messages -----------------------------------------------------------------------
+    def _error(self, message: str) -> None:
+        with self._lock:
+            if sum(r["type"] == "error" for r in self._replies) < MAX_ERRORS:
+                self._replies.append({"type": "error", "message": message[:300]})
+            else:
+                self._refused += 1
+
+    # messages, checked against what earlier messages asked for (under the lock)
 
     def _on_set(self, msg: dict[str, Any]) -> None:
         changes = msg["params"]
         for key in changes:
             if key not in PARAMS:
                 raise ProtocolError(f"set: unknown parameter {str(key)[:40]!r} (allowed: {', '.join(PARAMS)})")
+        self._want_state = True
         if not changes:
             return
         if {"n", "density", "dim"} & changes.keys():
-            data = self.model.to_dict()
+            data = self._target.to_dict()
             del data["box"]
-            data["density"] = self.model.density
+            data["density"] = self._target.density
             data.update(changes)
-            self._start(check_limits(Model(**data)))
-            return
-        model = check_limits(self.model.replace(**changes))
-        old = self.sim.state
-        state = State(old.positions, old.headings, initial_speeds(model), old.step)
-        self.sim = Simulation(model, state, backend="cpu")
-        self._dirty = True
+            self._target = check_limits(Model(**data))
+        else:
+            self._target = check_limits(self._target.replace(**changes))
+
+    def _check_finite(self, kind: str) -> None:
+        target, model = self._target, self.model
+        fresh = self._reset is not None or (target.n, target.dim, target.box) != (model.n, model.dim, model.box)
+        if self.broken is not None and not fresh:
+            raise ProtocolError(f"{kind}: the flock became non-finite at step {self.broken}; reset it first")
 
     def _on_play(self, msg: dict[str, Any]) -> None:
+        self._check_finite("play")
         self.running = True
+        self._want_state = True
 
     def _on_pause(self, msg: dict[str, Any]) -> None:
         self.running = False
-        self._dirty = True  # the paused flag reaches the page with the next frame
+        self._want_state = True
 
     def _on_step(self, msg: dict[str, Any]) -> None:
+        self._check_finite("step")
         self.running = False
-        steps, self.steps_per_frame = self.steps_per_frame, 1
-        try:
-            self.advance()
-        finally:
-            self.steps_per_frame = steps
+        self._want_state = True
+        if self._steps >= MAX_STEPS_PER_FRAME:
+            raise ProtocolError(f"step: {MAX_STEPS_PER_FRAME} steps are already waiting; this one is dropped")
+        self._steps += 1
 
     def _on_reset(self, msg: dict[str, Any]) -> None:
-        init = msg.get("init", self.init)
+        init = msg.get("init", self.init if self._reset is None else self._reset)
         if init not in INITS:
             raise ProtocolError(f"reset.init: must be one of {', '.join(INITS)} (got {init[:40]!r})")
-        self.init = init
-        self._start(self.model)
+        self._reset, self._steps = init, 0  # steps asked before a reset would be undone by it
+        self._want_state = True
 
     def _on_steps_per_frame(self, msg: dict[str, Any]) -> None:
         value = msg["value"]
         if not 1 <= value <= MAX_STEPS_PER_FRAME:
             raise ProtocolError(f"steps_per_frame: must be in [1, {MAX_STEPS_PER_FRAME}] (got {value})")
         self.steps_per_frame = value
+        self._want_state = True
 
-    def _on_config(self, msg: dict[str, Any]) -> dict[str, Any]:
-        return {"type": "config", "toml": self.config_toml(), "filename": "flocking-play.toml"}
+    def _on_config(self, msg: dict[str, Any]) -> None:
+        if self._configs >= MAX_CONFIGS:
+            raise ProtocolError(f"config: {MAX_CONFIGS} answers are already waiting; ask again later")
+        self._configs += 1
+        self._replies.append({"type": "config", "toml": self.config_toml(self._target, self._reset),
+                              "filename": "flocking-play.toml"})
 
-    def _start(self, model: Model) -> None:
-        state = State.aligned(model) if self.init == "aligned" else State.random(model)
-        self.sim = Simulation(model, state, backend="cpu")
+    # -- the stepping thread's side -------------------------------------------------------
+
+    def work(self, advance: bool = False) -> None:
+        """Apply the messages received so far, then take the steps they asked for and, with
+        ``advance`` while running, a frame's steps; the new frame is then ready."""
+        with self._lock:
+            target, reset, steps = self._target, self._reset, self._steps
+            self._reset, self._steps = None, 0
+        changed = (target is not self.model or reset is not None) and self._apply(target, reset)
+        if advance and self.running:
+            steps += self.steps_per_frame
+        if steps and time.monotonic() - self._priced >= PRICE_EVERY:  # the flock may have crowded
+            self.step_seconds = step_cost(self.model, self.sim.state.positions)[0]
+            self._priced = time.monotonic()
+        done = self._advance(steps)
+        if (changed or done) and self.broken is None:
+            self._encode(self.sim.state)
+
+    def handle(self, raw: str | bytes) -> None:
+        """:meth:`receive` and :meth:`work` in one (for tests and scripts)."""
+        self.receive(raw)
+        self.work()
+
+    def _apply(self, target: Model, reset: str | None) -> bool:
+        """Run ``target`` (from a new state after a reset or a size change); on a refusal,
+        queue the error and keep running what ran."""
+        model = self.model
+        changed = {k for k in PARAMS if getattr(target, k) != getattr(model, k)}
+        fresh = reset is not None or (target.n, target.dim, target.box) != (model.n, model.dim, model.box)
+        init = self.init if reset is None else reset
+        try:
+            if fresh:
+                state = self._new_state(target, init)
+            else:
+                old = self.sim.state
+                state = State(old.positions, old.headings, initial_speeds(target), old.step)
+            seconds = check_step(target, state.positions, next((k for k in SLOW if k in changed), "n"))
+            self.budget.reserve(self, session_bytes(target), next((k for k in LARGE if k in changed), "n"))
+            if self.closed:  # the tab went while this was decided: hold nothing
+                self.budget.leave(self)
+                return False
+        except ParameterError as err:
+            self._error(str(err))
+            self._want_state = True
+            with self._lock:
+                if self._target is target:  # else later messages asked for more: checked next time
+                    self._target = model
+            return False
+        self.sim = None  # the old simulation's memory goes before the new one's comes
+        self.sim = Simulation(target, state, backend="cpu")
+        self._model, self._step = target, state.step
+        self.init, self.step_seconds, self._priced = init, seconds, time.monotonic()
+        if fresh:
+            self.broken = None
         self.phi = state.polar_order()
-        self._dirty = True
+        return True
+
+    def _advance(self, steps: int) -> int:
+        """Take up to ``steps`` steps, one at a time: stop when the tab closes, when new
+        messages wait, or when the flock becomes too slow to step or non-finite."""
+        if steps and self.step_seconds > MAX_STEP_SECONDS:
+            self.running = False
+            self._want_state = True
+            self._error(f"the flock has crowded so that one step would take about {self.step_seconds:.2g} s (at "
+                        f"most {MAX_STEP_SECONDS:g} s in flocking play); paused: reset it, or lower radius, n "
+                        f"or density")
+            return 0
+        numba.set_num_threads(1 if self.model.n < SERIAL_BELOW else numba.config.NUMBA_NUM_THREADS)
+        done = 0
+        for _ in range(steps):
+            if self.closed or (done and self.pending()):
+                break
+            phi = float(self.sim.backend.advance(1)[0])
+            self._step += 1
+            done += 1
+            if not math.isfinite(phi):
+                self.running = False
+                self.broken = self._step
+                self._want_state = True
+                self._error(f"the flock became non-finite at step {self.broken} (phi = {phi}); paused: reset it")
+                break
+            self.phi = phi
+        self.frame_seconds = done * self.step_seconds
+        return done
+
+    def _new_state(self, model: Model, init: str) -> State:
+        return State.aligned(model) if init == "aligned" else State.random(model)
+
+    def _encode(self, state: State) -> None:
+        frame = encode_frame(state, self.model, self.phi, self.running)
+        with self._lock:
+            self._frame = frame
 
 
 # -- frames ------------------------------------------------------------------------------

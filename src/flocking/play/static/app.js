@@ -8,9 +8,11 @@ const flockCanvas = $("flock");
 const renderer = new Renderer(flockCanvas);
 const plot = new OrderPlot($("plot"));
 const NOISE_MAX = { angular: 2 * Math.PI, vectorial: 2 };
+const NOISE_SCALE = { angular: ["0: none", "π", "2π: random"], vectorial: ["0: none", "1", "2"] };
 
 // what tests and curious users can read in the console
-const stats = { frames: 0, fps: 0, drawMs: 0, step: 0, phi: 0, n: 0, dim: 2, running: true, errors: [], model: null };
+const stats = { frames: 0, fps: 0, drawMs: 0, step: 0, phi: 0, n: 0, dim: 2, running: true, errors: [], model: null,
+                refused: null, plot };
 window.flockPlay = stats;
 
 let socket = null;
@@ -18,6 +20,7 @@ let latest = null;       // the newest frame, drawn at the next animation frame
 let drawn = null;        // the frame on screen (redrawn when the 3D view turns)
 let lastStep = -1;
 let model = null;        // the model the server runs (from its "state" replies)
+let refused = null;      // why the server refused this tab, if it did
 
 // -- the socket ----------------------------------------------------------------------------
 
@@ -30,9 +33,24 @@ function connect() {
     else onFrame(decodeFrame(event.data));
   };
   socket.onclose = () => {
-    say("Disconnected from the server. Start `flocking play` again and reload this page.", true);
-    $("readout").textContent = "disconnected";
+    if (refused) {
+      offline(`The server refused this tab: ${refused}. The server is still running: reload this page ` +
+              "once that is done.");
+      $("readout").textContent = "refused by the server";
+    } else {
+      offline("Disconnected from the server. Start `flocking play` again and reload this page.");
+      $("readout").textContent = "disconnected";
+    }
   };
+}
+
+// the controls of a tab without a server do nothing: disable them and say why, for good
+function offline(text) {
+  document.body.classList.add("offline");
+  for (const el of document.querySelectorAll("#controls fieldset")) el.disabled = true;
+  clearTimeout(sayTimer);
+  $("message").textContent = text;
+  $("message").classList.add("error");
 }
 
 function send(message) {
@@ -45,11 +63,14 @@ function onFrame(frame) {
   latest = frame;
   stats.frames++;
   Object.assign(stats, { step: frame.step, phi: frame.phi, n: frame.n, dim: frame.dim, running: frame.running });
-  plot.push(frame.phi);
+  plot.push(frame.step, frame.phi);
 }
 
 function onReply(reply) {
-  if (reply.type === "error") {
+  if (reply.type === "refused") {
+    refused = reply.message;
+    stats.refused = refused;
+  } else if (reply.type === "error") {
     stats.errors.push(reply.message);
     say(reply.message, true);
   } else if (reply.type === "state") {
@@ -80,16 +101,18 @@ function animate(now) {
     frameCount = 0;
     since = now;
   }
-  if (drawn) readout(drawn);
+  if (drawn && !document.body.classList.contains("offline")) readout(drawn);  // unchanged text costs no layout
   requestAnimationFrame(animate);
 }
 
 function readout(frame) {
   const box = frame.box.slice(0, frame.dim).map((l) => l.toFixed(1)).join(" × ");
-  $("readout").textContent =
-    `step ${frame.step}   ·   φ = ${frame.phi.toFixed(3)}   ·   N = ${frame.n}   ·   box ${box}` +
-    `   ·   ${stats.fps.toFixed(0)} frames/s${frame.running ? "" : "   ·   paused"}`;
+  setText($("phi"), frame.phi.toFixed(3));
+  setText($("readout"), `step ${frame.step}   ·   N = ${frame.n}   ·   box ${box}   ·   ` +
+          `${stats.fps.toFixed(0)} frames/s${frame.running ? "" : "   ·   paused"}`);
 }
+
+function setText(el, text) { if (el.textContent !== text) el.textContent = text; }
 
 // -- controls ------------------------------------------------------------------------------
 
@@ -169,10 +192,19 @@ function sync(reply) {
   const three = m.dim === 3;
   flockCanvas.parentElement.classList.toggle("three", three);
   $("hint").hidden = !three;
+  $("wheel-caption").textContent = three ? "colour = heading, seen from above" : "colour = heading";
+  $("noise-scale").replaceChildren(...NOISE_SCALE[m.noise_type].map((t) => Object.assign(document.createElement("span"), { textContent: t })));
+  // R and v0 against the box: what a class can picture
+  const side = Math.min(...m.box);
+  $("radius-hint").textContent = `how far a particle sees: the box is ${fewDigits(side / m.radius)} R wide`;
+  $("speed-hint").textContent = `distance moved per step: crossing the box takes ${fewDigits(side / (m.speed * m.dt))} steps`;
 }
+
+function fewDigits(x) { return x >= 10 ? Math.round(x).toString() : x.toFixed(1); }
 
 let sayTimer = null;
 function say(text, error = false) {
+  if (document.body.classList.contains("offline")) return;  // the reason it is offline stays
   const el = $("message");
   el.textContent = text;
   el.classList.toggle("error", error);
@@ -190,8 +222,21 @@ function download(blob, name) {
   setTimeout(() => URL.revokeObjectURL(a.href), 1000);
 }
 
+// canvases are drawn at their size on screen (times the pixel ratio), which the layout sets
+function fit() {
+  const dpr = window.devicePixelRatio || 1;
+  const side = Math.min(2048, Math.round(flockCanvas.clientWidth * dpr));
+  if (side > 0 && flockCanvas.width !== side) {
+    flockCanvas.width = flockCanvas.height = side;
+    if (drawn) latest = latest || drawn;
+  }
+  const compass = $("compass"), c = Math.round(compass.clientWidth * dpr);
+  if (c > 0 && compass.width !== c) { compass.width = compass.height = c; drawCompass(compass); }
+  plot.resize();
+}
+new ResizeObserver(fit).observe(document.body);
+
 renderer.attachDrag(flockCanvas, () => { if (drawn && drawn.dim === 3) latest = latest || drawn; });
-drawCompass($("compass"));
-plot.draw();
+fit();
 connect();
 requestAnimationFrame(animate);

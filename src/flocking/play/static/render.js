@@ -76,8 +76,9 @@ export class Renderer {
     const scale = Math.min(canvas.width / lx, canvas.height / ly);
     const x0 = (canvas.width - lx * scale) / 2, y0 = (canvas.height + ly * scale) / 2;
     const sx = (lx * scale) / 65536, sy = (ly * scale) / 65536;
-    const len = Math.max(2, Math.min(10, 0.7 * scale));
-    const thick = len >= 4 && n <= 100000;
+    const dpr = window.devicePixelRatio || 1;
+    const len = Math.max(2, Math.min(10 * dpr, 0.7 * scale));
+    const thick = len >= 4 * dpr && n <= 100000;
     const cos = new Float32Array(256), sin = new Float32Array(256);
     for (let a = 0; a < 256; a++) { cos[a] = len * Math.cos(a * Math.PI / 128); sin[a] = len * Math.sin(a * Math.PI / 128); }
     for (let i = 0; i < n; i++) {
@@ -173,11 +174,11 @@ export class Renderer {
 // A colour wheel: which colour flies which way (seen from above in 3D).
 export function drawCompass(canvas) {
   const ctx = canvas.getContext("2d");
-  const c = canvas.width / 2, r = c - 6;
+  const c = canvas.width / 2, r = 0.93 * c;
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   ctx.fillStyle = "rgba(15, 20, 32, 0.75)";
   ctx.beginPath(); ctx.arc(c, c, c, 0, 2 * Math.PI); ctx.fill();
-  ctx.lineWidth = 2.5;
+  ctx.lineWidth = Math.max(2, canvas.width / 34);
   ctx.lineCap = "round";
   for (let b = 0; b < HUES; b++) {
     const angle = (b + 0.5) * 2 * Math.PI / HUES;
