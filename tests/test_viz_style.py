@@ -37,6 +37,22 @@ def overflow(fig) -> float:
     return 72.0 * max(box.x0 - tight.x0, box.y0 - tight.y0, tight.x1 - box.x1, tight.y1 - box.y1, 0.0)
 
 
+def dense_frame(dim):
+    """40000 particles in 2D (a density map at every size), or 3000 in 3D."""
+    rng = np.random.default_rng(1)
+    n = 40000 if dim == 2 else 3000
+    points = np.zeros((n, 3), np.float32)
+    points[:, :dim] = rng.uniform(-10, 10, (n, dim))
+    velocities = rng.normal(size=(n, 3)).astype(np.float32)
+    velocities[:, dim:] = 0
+    return flocking.Frame(5000, dim, (20.0,) * dim, points, velocities)
+
+
+def overlapping(fig, a, b) -> bool:
+    renderer = fig.canvas.get_renderer()
+    return a.get_window_extent(renderer).overlaps(b.get_window_extent(renderer))
+
+
 @pytest.mark.parametrize("size", ["column", "slide", 6.0])
 @pytest.mark.parametrize("theme", ["dark", "light"])
 def test_no_text_is_clipped_with_wide_ticks_and_every_parameter(size, theme):
@@ -46,11 +62,31 @@ def test_no_text_is_clipped_with_wide_ticks_and_every_parameter(size, theme):
     assert overflow(scene.figure) <= 1.0
     caption = scene.figure._supxlabel.get_text()
     assert "vectorial" in caption and "seed 12345" in caption and "\n" in caption  # wrapped, not cut
+    assert not overlapping(scene.figure, scene.figure._supxlabel, scene.ax.xaxis.label)
     # the heading key's labels are legible: at least 10 pixels at the default movie resolution
     if size == 6.0:
         movie = Scene.for_frame(frame, BUSY, theme=theme, size=6.0, dpi=120)
         sizes = [t.get_fontsize() * 120 / 72 for t in movie.key_axes.texts]
         assert min(sizes) >= 10
+
+
+@pytest.mark.parametrize("size", ["column", "slide", 6.0])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_density_and_3d_pictures_keep_their_keys_whole_and_apart(size, dim):
+    frame = dense_frame(dim)
+    for theme in ("dark", "light"):
+        scene = Scene.for_frame(frame, BUSY if dim == 2 else None, theme=theme, size=size, dpi=100)
+        scene.draw(frame).rgb()
+        assert scene.style == ("density" if dim == 2 else "perspective")
+        assert overflow(scene.figure) <= 1.0
+        fig, key = scene.figure, scene.key_axes
+        wheel = key.images[0].get_window_extent(fig.canvas.get_renderer())
+        assert wheel.width >= 4 * 0.75 * style.fontsize(fig) * 100 / 72      # a wheel, not a dot
+        for text in key.texts:                                             # labels inside the key's box
+            assert key.get_window_extent().contains(*text.get_window_extent().get_points().mean(0))
+        if dim == 2:
+            assert not overlapping(fig, scene._key_label, scene.colorbar.ax)
+            assert not overlapping(fig, key, scene.colorbar.ax)
 
 
 def test_sizes_fonts_and_pixels():

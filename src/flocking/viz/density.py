@@ -157,6 +157,24 @@ def density_image(field: DensityField, theme: Theme, vmax: float) -> np.ndarray:
     return background + alpha[..., None] * (ink - background)
 
 
+def density_ticks(vmax: float, spacing: float = 0.14) -> list[float]:
+    """Round ticks for a density colour bar of top ``vmax``: 1-2-5 numbers and ``vmax``,
+    at least ``spacing`` apart on the bar's ``GAMMA`` scale, and 0.
+
+    >>> density_ticks(15.0), density_ticks(4.0)
+    ([0.0, 0.5, 2.0, 5.0, 10.0, 15.0], [0.0, 0.1, 0.5, 1.0, 2.0, 4.0])
+    """
+    k = math.floor(math.log10(vmax))
+    candidates = [m * 10.0**e for e in range(k - 3, k + 1) for m in (1.0, 2.0, 5.0) if m * 10.0**e < vmax]
+    ticks, last = [vmax], 1.0
+    for value in sorted(candidates, reverse=True):
+        position = (value / vmax) ** GAMMA
+        if last - position >= spacing and position >= spacing:
+            ticks.append(float(round(value, 12)))
+            last = position
+    return [0.0] + sorted(ticks)
+
+
 def density_colormap(theme: Theme):
     """The colour map of zero-order ink over the background, for the density colour bar."""
     from matplotlib.colors import LinearSegmentedColormap

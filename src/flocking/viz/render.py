@@ -32,7 +32,7 @@ import numpy as np
 from ..model import Model, ParameterError
 from . import style as house
 from .colors import angle_colors, get_theme, heading_colors, theme_of_color, wheel_image
-from .density import GAMMA, DensityField, density_colormap, density_image, density_scale, grid_shape
+from .density import GAMMA, DensityField, density_colormap, density_image, density_scale, density_ticks, grid_shape
 from .perspective import Camera, glyph_length, perspective_image
 
 STYLES = ("auto", "arrows", "density", "perspective")
@@ -282,25 +282,31 @@ class Scene:
         self.box = np.asarray(box_lengths, dtype=float)[:dim]
         aspect = float(np.clip(self.box[1] / self.box[0], 0.25, 4.0)) if dim == 2 else 1.0
         auto_height = height is None
-        if auto_height:  # at most: the box takes about 70 % of the width; title and caption add bands
-            height = 0.7 * width * aspect + (3.6 if title else 1.2) * fs / 72 * 1.35 + 0.15
+        bands = (3.6 if title else 1.2) * fs / 72 * 1.35 + 0.15  # title, caption, x label
+        if auto_height:  # at most: the box takes about 70 % of the width
+            height = 0.7 * width * aspect + bands
         width_px = 16 * max(4, round(width * dpi / 16))
         height_px = 16 * max(4, round(height * dpi / 16))
         self.pixels = (width_px, height_px)
         self.figure = fig = house.new_figure(width_px / dpi, height_px / dpi, t, fs, dpi, pyplot)
-        points = 0.7 * width * 72
+        points = 72 * min(0.7 * width, (height - bands) / aspect) * max(1.0, aspect)  # the box's longer side
         self.style = choose_style(style, dim, n, self.box, points)
         density = self.style == "density"
-        grid = fig.add_gridspec(1, 2, width_ratios=[1.0, 0.3])
+        key_width = max(0.22 * width, 9.5 * fs / 72)  # inches: the wheel and its labels at any size
+        grid = fig.add_gridspec(1, 2, width_ratios=[width - key_width, key_width])
         self.ax = fig.add_subplot(grid[0, 0])
         side = grid[0, 1].subgridspec(2, 1, height_ratios=[1.0, 1.6] if density else [1.0, 1.0])
         self.key_axes = fig.add_subplot(side[0])
+        # a box narrower than its slot (a wide figure) sits next to its keys, not apart
+        self.ax.set_anchor("E")
+        self.key_axes.set_anchor("W")
         self._style_axes(fs)
         self._key(dim, fs, ink=density)
         self.colorbar = None
         if density:
             cax = side[1].subgridspec(1, 3, width_ratios=[1, 0.5, 1])[0, 1]
             cax = fig.add_subplot(cax)
+            cax.set_anchor("W")
             self._density_norm = mcolors.PowerNorm(GAMMA, vmin=0.0, vmax=density_max or 1.0)
             mappable = ScalarMappable(norm=self._density_norm, cmap=density_colormap(t))
             self.colorbar = fig.colorbar(mappable, cax=cax)
@@ -332,11 +338,21 @@ class Scene:
                 fig.set_size_inches(width_px / dpi, height_px / dpi)
                 self._layout()
         fig.set_layout_engine("none")
-        self.ax.apply_aspect()
+        self._centre()
         bbox = self.ax.get_window_extent()
         self._args = dict(theme=t, style=self.style, arrow_scale=arrow_scale, azim=azim, elev=elev,
                           pixels=int(round(max(bbox.width, bbox.height))), density_max=density_max)
         self.artist = None
+
+    def _centre(self) -> None:
+        """Move the box and its keys together to the middle of a figure wider than they need."""
+        for ax in self.figure.axes:
+            ax.apply_aspect()
+        slack = self.ax.get_position(original=True).width - self.ax.get_position().width
+        if slack > 0.01:
+            for ax in self.figure.axes:
+                p = ax.get_position()
+                ax.set_position([p.x0 - slack / 2, p.y0, p.width, p.height])
 
     def _layout(self) -> None:
         with warnings.catch_warnings():  # a tiny figure keeps the grid's plain layout
@@ -362,20 +378,23 @@ class Scene:
         ax.set_facecolor(t.background)
 
     def _key(self, dim: int, fs: float, ink: bool = False) -> None:
+        # every label lies inside the axes' limits, so the layout never shrinks the wheel
         ax, t = self.key_axes, self.theme
         ax.imshow(wheel_image(192, dim, t, ink), interpolation="antialiased", extent=(-1, 1, -1, 1))
-        ax.set_xlim(-1.75, 1.75)
-        ax.set_ylim(-1.75, 1.75)
+        ax.set_xlim(-2.0, 2.0)
+        ax.set_ylim(-2.3, 1.65)
         ax.set_axis_off()
         small = 0.75 * fs
         for angle, text, ha in ((0, "0\u00b0", "left"), (90, "90\u00b0", "center"), (180, "180\u00b0", "right"),
                                 (270, "270\u00b0", "center")):
             a = np.radians(angle)
-            ax.text(1.12 * np.cos(a), 1.12 * np.sin(a), text, ha=ha, va="center" if angle in (0, 180)
+            ax.text(1.1 * np.cos(a), 1.1 * np.sin(a), text, ha=ha, va="center" if angle in (0, 180)
                     else ("bottom" if angle == 90 else "top"), color=t.text, fontsize=small)
         label = "heading" if dim == 2 else "heading\n(grey: $\\pm z$)"
-        self._key_label = ax.text(0.5, -0.02, label, transform=ax.transAxes, ha="center", va="top",
-                                  color=t.text, fontsize=0.85 * fs, linespacing=1.2)
+        if ink:
+            label = "heading\n(grey: no order)"
+        self._key_label = ax.text(0.0, -1.62, label, ha="center", va="top", color=t.text, fontsize=small,
+                                  linespacing=1.2)
 
     @property
     def density_max(self) -> float | None:
@@ -390,6 +409,7 @@ class Scene:
         if self.colorbar is not None:
             self._density_norm.vmax = value
             self.colorbar.update_normal(self.colorbar.mappable)
+            self.colorbar.set_ticks(density_ticks(value))
 
     def _narrow(self, text: str) -> bool:
         """Whether ``text`` in the time label's font takes more than 70 % of the box's width."""
@@ -409,7 +429,6 @@ class Scene:
         if self.artist is None:
             self.artist = FrameArtist(self.ax, frame, **self._args)
             if self.artist.style == "density":
-                self._key_label.set_text("mean heading\n(grey: no order)")
                 self.set_density_max(self.artist.density_max)
         else:
             self.artist.update(frame, azim=azim)
