@@ -66,7 +66,6 @@ def test_few_particles_never_show_an_order():
 
 def test_image_brightness_follows_the_colour_bar():
     rng = np.random.default_rng(4)
-    n = 5000
     pos = np.vstack([rng.uniform([-20, -20], [-10, 20], (4000, 2)), rng.uniform([0, -20], [20, 20], (1000, 2))])
     heads = np.vstack([np.tile([0.0, 1.0], (4000, 1)), random_headings(rng, 1000)])
     field = DensityField(pos, heads, BOX, (80, 80))

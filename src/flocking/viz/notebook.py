@@ -3,8 +3,9 @@
 The video is an mp4 (H.264 through the ffmpeg that ``imageio-ffmpeg`` ships) inlined
 in a ``<video>`` tag, so it needs no kernel once drawn and the notebook stays small:
 60 frames of 2048 particles at the default size take 0.8 MB of HTML (the PNG frames of
-an earlier player took 7 MB; ``tests/test_viz.py`` holds it under 1 MB). ``Trajectory._repr_html_`` and ``Frame._repr_png_`` call
-into this module, so ``traj`` or ``traj[-1]`` as the last line of a cell shows the flock.
+an earlier player took 7 MB; ``tests/test_viz.py`` holds it under 1 MB).
+``Trajectory._repr_html_`` and ``Frame._repr_png_`` call into this module, so ``traj``
+or ``traj[-1]`` as the last line of a cell shows the flock.
 
 >>> import flocking, numpy as np
 >>> frame = flocking.Frame(0, 2, [4, 4], np.zeros((3, 3)), np.eye(3) * 0.5)

@@ -18,8 +18,9 @@ movie costs one redraw a frame, never a new figure. Three styles:
 >>> import flocking
 >>> frame = flocking.Frame(0, 2, [4, 4], np.zeros((1, 3)), np.array([[0.5, 0, 0]]))
 >>> scene = Scene.for_frame(frame, size=3.0, dpi=64)
->>> scene.draw(frame).rgb().shape
-(144, 192, 3)
+>>> rgb = scene.draw(frame).rgb()
+>>> rgb.shape[1], rgb.shape == (scene.pixels[1], scene.pixels[0], 3)
+(192, True)
 """
 
 from __future__ import annotations

@@ -22,7 +22,6 @@ flocking.model.ParameterError: output: must end in .png, .svg or .pdf (got 'run.
 from __future__ import annotations
 
 import os
-import textwrap
 
 import numpy as np
 
