@@ -208,7 +208,10 @@ def test_animate_command_movies_pictures_and_their_errors(run_dir, tmp_path):
                        (["animate", str(run_dir), "-o", str(tmp_path / "x.png"), "--frame", "99"], "--frame"),
                        (["animate", str(run_dir), "-o", str(tmp_path / "x.png"), "--dpi", "0"],
                         "--dpi: must be in [10, 1000]"),
-                       (["animate", str(run_dir), "-o", str(tmp_path / "x.png"), "--size", "poster"], "--size")]:
+                       (["animate", str(run_dir), "-o", str(tmp_path / "x.png"), "--size", "poster"], "--size"),
+                       (["animate", str(run_dir), "--arrow-scale", "0"], "--arrow-scale: must be a number > 0"),
+                       (["animate", str(run_dir), "-o", str(tmp_path / "x.pdf"), "--arrow-scale", "nan"],
+                        "--arrow-scale: must be a number > 0")]:
         bad = runner.invoke(main, args)
         lines = bad.output.strip().splitlines()
         assert bad.exit_code == 2 and len(lines) == 1 and lines[0].startswith("Error:") and word in lines[0], \

@@ -78,6 +78,17 @@ def as_parameters(parameters) -> dict | None:
     raise ParameterError(f"parameters: must be a Model or a dict of parameters (got {type(parameters).__name__})")
 
 
+def positive(name: str, value) -> float:
+    """``value`` as a finite float > 0, or a :class:`ParameterError` naming ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not (np.isfinite(number) and number > 0):
+        raise ParameterError(f"{name}: must be a number > 0 (got {value!r})")
+    return number
+
+
 def _g(value) -> str:
     return f"{value:.3g}" if isinstance(value, float) else str(value)
 
@@ -138,13 +149,9 @@ class FrameArtist:
         self.pixels = max(int(pixels), 16)
         points = max(bbox.width, bbox.height) * 72.0 / ax.figure.dpi
         self.style = choose_style(style, frame.dim, frame.n, self.box, points)
-        self.arrow_scale = float(arrow_scale)
-        if not np.isfinite(self.arrow_scale) or self.arrow_scale <= 0:
-            raise ParameterError(f"arrow_scale: must be a number > 0 (got {arrow_scale!r})")
+        self.arrow_scale = positive("arrow_scale", arrow_scale)
         self.azim, self.elev = float(azim), float(elev)
-        if density_max is not None and not (np.isfinite(density_max) and density_max > 0):
-            raise ParameterError(f"density_max: must be a number > 0 (got {density_max!r})")
-        self.density_max = density_max
+        self.density_max = None if density_max is None else positive("density_max", density_max)
         if self.dim == 2:
             lx, ly = self.box[:2]
             ax.set_xlim(-lx / 2, lx / 2)
@@ -277,8 +284,11 @@ class Scene:
         check_style(style, dim)
         dpi = house.check_dpi(dpi) or house.DPI
         width, height, fs = house.resolve_size(size)
-        if size in ("column", "page"):  # a paper's width; the height follows the box
+        if isinstance(size, str) and size != "slide":  # a paper's width; the height follows the box
             height = None
+        positive("arrow_scale", arrow_scale)
+        if density_max is not None:
+            density_max = positive("density_max", density_max)
         self.dim = dim
         self.box = np.asarray(box_lengths, dtype=float)[:dim]
         aspect = float(np.clip(self.box[1] / self.box[0], 0.25, 4.0)) if dim == 2 else 1.0
