@@ -151,7 +151,7 @@ def _cones(centres, axes, albedo, length, radius, focal, size, light, depth, rgb
                         nx, ny, nz = -nx, -ny, -nz
                     diffuse = max(nx * light[0] + ny * light[1] + nz * light[2], 0.0)
                     spec = max(nx * hx + ny * hy + nz * hz, 0.0) ** 40
-                    shade = 0.42 + 0.7 * diffuse
+                    shade = 0.52 + 0.62 * diffuse
                     depth[row, col] = best
                     for c in range(3):
                         rgb[row, col, c] = albedo[i, c] * shade + 0.3 * spec
@@ -190,10 +190,10 @@ def _compose(depth, kind, rgb, ss, wide, scale, near, far, background, out):  # 
                     else:
                         light = 1.0
                         if k == 1:
-                            occ = 0.45 * _hidden(depth, kind, y, x, wide, scale) \
-                                + 0.35 * _hidden(depth, kind, y, x, ss, 0.5 * scale)
+                            occ = 0.35 * _hidden(depth, kind, y, x, wide, scale) \
+                                + 0.3 * _hidden(depth, kind, y, x, ss, 0.5 * scale)
                             light = 1.0 - min(occ, 0.8)
-                        fog = 0.6 * min(max((depth[y, x] - near) / (far - near), 0.0), 1.0)
+                        fog = 0.5 * min(max((depth[y, x] - near) / (far - near), 0.0), 1.0)
                         r = rgb[y, x, 0] * light * (1 - fog) + background[0] * fog
                         g = rgb[y, x, 1] * light * (1 - fog) + background[1] * fog
                         b = rgb[y, x, 2] * light * (1 - fog) + background[2] * fog
