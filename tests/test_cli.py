@@ -49,7 +49,7 @@ def test_default_like_run_writes_a_complete_folder(tmp_path):
     assert np.array_equal(steps, np.arange(26))
     assert np.all((phi >= 0) & (phi <= 1))
     # the last frame's polar order is the last row's
-    assert traj[-1].polar_order() == pytest.approx(phi[-1], abs=1e-6)
+    assert traj[-1].polar_order == pytest.approx(phi[-1], abs=1e-6)
 
 
 def test_config_repeats_the_run_bit_for_bit(tmp_path):

@@ -118,4 +118,4 @@ def test_hoomd_convention_files_open_in_ours(tmp_path, dim, with_velocity):
     model = flocking.Model(dim=dim, n=40, box=box[:dim], noise=0.5)
     state = flocking.State.from_gsd(path, model)
     assert state.step == 1000 and np.all(state.positions >= 0) and np.all(state.positions < box[:dim])
-    assert frame.polar_order() == pytest.approx(np.linalg.norm(heading[:, :dim].sum(axis=0)) / 40, abs=1e-5)
+    assert frame.polar_order == pytest.approx(np.linalg.norm(heading[:, :dim].sum(axis=0)) / 40, abs=1e-5)

@@ -245,7 +245,7 @@ def test_time_series_trajectories_and_zarr(tmp_path):
         assert float(ds["order"].sel(noise=point.params["noise"], replica=0)) == polar_moments(phi, 25)["mean"]
         with flocking.open(os.path.join(out, "points", point.id, "trajectory.gsd")) as traj:
             assert [f.step for f in traj] == [0, 5, 10] and traj.model.seed == point.config.model.seed
-            assert traj[-1].polar_order() == pytest.approx(phi[-1], abs=1e-6)  # float32 frames
+            assert traj[-1].polar_order == pytest.approx(phi[-1], abs=1e-6)  # float32 frames
     save(ds, str(tmp_path / "r.zarr"))
     xr.testing.assert_identical(open_results(str(tmp_path / "r.zarr")), ds)
     with pytest.raises(ParameterError, match="must end in .nc"):

@@ -10,9 +10,13 @@ Any GSD file in HOOMD conventions can be read, ours or another program's. A
 >>> sim = flocking.Simulation(flocking.Model(n=10, box=5.0))
 >>> sim.writers.append(flocking.GSDWriter(path, every=2))
 >>> sim.run(4)
->>> with flocking.open(path) as traj:
-...     len(traj), traj[-1].step, traj[-1].points.shape, traj.model.n
-(3, 4, (10, 3), 10)
+>>> with flocking.open(path) as traj:  # doctest: +ELLIPSIS
+...     print(traj)
+...     len(traj), traj[-1].step, traj[-1].points.shape, traj.model.n, 0 <= traj[-1].polar_order <= 1
+Trajectory('.../t.gsd', frames=3, steps 0..4, n=10, dim=2, box=[5.0, 5.0])
+(3, 4, (10, 3), 10, True)
+>>> traj  # doctest: +ELLIPSIS
+Trajectory('.../t.gsd', closed)
 """
 
 from __future__ import annotations
@@ -67,8 +71,10 @@ class Frame:
         norm = np.linalg.norm(v, axis=1, keepdims=True)
         return np.divide(v, norm, out=np.zeros_like(v), where=norm > 0)
 
+    @property
     def polar_order(self) -> float:
-        return float(np.linalg.norm(self.headings.sum(axis=0)) / self.n)
+        """``|sum of the headings| / N``, in [0, 1] (0 for an empty frame)."""
+        return float(np.linalg.norm(self.headings.sum(axis=0)) / self.n) if self.n else 0.0
 
     def __iter__(self) -> Iterator:
         """``box, points = frame``: the ``(box, points)`` pair that freud accepts."""
@@ -90,6 +96,7 @@ class Trajectory:
     def __init__(self, path: str | os.PathLike):
         self.path = os.fspath(path)
         self._file = gsd.hoomd.open(self.path, mode="r")
+        self._closed = False
 
     def __len__(self) -> int:
         return len(self._file)
@@ -119,14 +126,24 @@ class Trajectory:
             return None
         return json.loads(np.asarray(log[PARAMETERS_KEY], dtype=np.uint8).tobytes().decode())
 
+    def __repr__(self) -> str:
+        if self._closed:
+            return f"Trajectory({self.path!r}, closed)"
+        if len(self) == 0:
+            return f"Trajectory({self.path!r}, frames=0)"
+        first, last = self[0], self[-1]
+        return (f"Trajectory({self.path!r}, frames={len(self)}, steps {first.step}..{last.step}, "
+                f"n={last.n}, dim={last.dim}, box={last.box_lengths.tolist()})")
+
     def _repr_html_(self) -> str:
-        """A notebook plays a trajectory as an animation (HTML/JS, no ffmpeg)."""
+        """A notebook plays a trajectory as a small H.264 video."""
         from .viz.notebook import trajectory_html
 
         return trajectory_html(self)
 
     def close(self) -> None:
         self._file.close()
+        self._closed = True
 
     def __enter__(self) -> Trajectory:
         return self

@@ -92,7 +92,10 @@ def default_output_folder() -> str:
 @click.option("--no-plots", is_flag=True, help="No snapshot.png and polar_order.png at the end.")
 @click.option("--movie", is_flag=True, help="Write movie.mp4 at the end (see flocking animate).")
 @click.option("--show", is_flag=True, help="A window that shows the flock while it runs.")
-def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, **options):
+@click.option("--theme", default="dark", show_default=True, help="Pictures and movie: dark or light.")
+@click.option("--dpi", type=click.FLOAT, default=None, help="Pictures: pixels per inch. [default: 200]")
+@click.option("--plot-format", default="png", show_default=True, help="Pictures: png, svg or pdf.")
+def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, theme, dpi, plot_format, **options):
     """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
 
     \b
@@ -103,9 +106,14 @@ def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, **opt
       flocking run --config runs/run-0001/config.toml --out again   # bit for bit
       flocking run --resume hot --steps 10000                       # continue, or extend
     """
+    looks = dict(theme=theme, dpi=dpi, fmt=plot_format)
+    if movie or not no_plots:
+        from ..viz.movie import check_picture_options
+
+        check_picture_options(**looks)
     if resume_dir is not None:
         resume(resume_dir, config_file, out, quiet, options, show=show)
-        return pictures(resume_dir, no_plots, movie, quiet)
+        return pictures(resume_dir, no_plots, movie, quiet, **looks)
     file_layer = RunConfig.load(config_file) if config_file else {}
     cfg = RunConfig.from_layers(file_layer, options)
     cfg.check_memory()
@@ -116,15 +124,16 @@ def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, **opt
 
     sim = Simulation(cfg.model, state, backend=cfg.backend, history=False, **cfg.backend_options())
     execute(cfg, sim, out, quiet, show=show)
-    pictures(out, no_plots, movie, quiet)
+    pictures(out, no_plots, movie, quiet, **looks)
 
 
-def pictures(out: str, no_plots: bool, movie: bool, quiet: bool) -> None:
-    """snapshot.png and polar_order.png (unless ``no_plots``), and movie.mp4 if asked."""
+def pictures(out: str, no_plots: bool, movie: bool, quiet: bool, **looks) -> None:
+    """snapshot and polar_order pictures (unless ``no_plots``), and movie.mp4 if asked;
+    ``looks``: ``theme``, ``dpi``, ``fmt`` (png, svg or pdf) as :func:`flocking.viz.after_run`."""
     if movie or not no_plots:
         from ..viz import after_run
 
-        after_run(out, plots=not no_plots, movie=movie, quiet=quiet)
+        after_run(out, plots=not no_plots, movie=movie, quiet=quiet, **looks)
 
 
 def resume(folder: str, config_file, out, quiet: bool, options: dict, show: bool = False) -> None:

@@ -1,13 +1,22 @@
 """Colours: themes, the heading -> colour map, and the colour-wheel key.
 
-A heading's colour is its angle on the HSV hue circle (0 = +x red, 90 degrees = +y
-yellow-green, 180 = cyan, 270 = violet): cyclic, so a flock turning through 360 degrees
-never jumps. In 3D the hue is the azimuth in the xy plane and the colour pales as the
-heading tilts toward +-z, so the key is a disc whose centre means "vertical".
+A heading's colour is its angle on a hue circle of constant lightness and chroma in
+OKLab, a perceptually uniform colour space: equal turns look like equal changes of
+colour, no hue stands out or vanishes (pure blue on black does in HSV), and every hue
+has the same contrast against the background. The circle is cyclic, so a flock turning
+through 360 degrees never jumps: 0 = +x is red, 90 degrees = +y olive green, 180 =
+teal, 270 = violet. The dark theme uses a lighter circle than the light theme, so the
+colours read on black and on white alike.
+
+In 3D the hue is the azimuth in the xy plane and the colour turns grey (the same
+lightness, no chroma) as the heading tilts toward +-z, so the key is a disc whose
+grey centre means "vertical".
 
 >>> rgb = heading_colors(np.array([[1.0, 0.0], [-1.0, 0.0]]), THEMES["dark"])
 >>> rgb.round(2).tolist()
-[[1.0, 0.0, 0.0], [0.0, 1.0, 1.0]]
+[[0.94, 0.54, 0.49], [0.08, 0.75, 0.84]]
+>>> [round(float(relative_luminance(c)), 2) for c in rgb]   # equal lightness, not equal RGB
+[0.38, 0.43]
 """
 
 from __future__ import annotations
@@ -19,14 +28,17 @@ import numpy as np
 
 @dataclasses.dataclass(frozen=True)
 class Theme:
-    """Colours of one look: figure and box background, text, box edges, particle brightness."""
+    """Colours of one look: figure and box background, text, box edges, and the
+    lightness and chroma (OKLab) of the particles' colours."""
 
     name: str
     figure: tuple
     background: tuple
     text: tuple
     edge: tuple
-    value: float  # HSV value of particle colours (slightly darker on white)
+    lightness: float  # OKLab L of particle colours: far from the background's
+    chroma: float  # OKLab chroma of a fully ordered heading, inside sRGB at every hue
+    ink: tuple = (0.74, 0.125)  # (L, chroma) of the densest regions of a density map
 
 
 def _hex(code: str) -> tuple:
@@ -34,9 +46,14 @@ def _hex(code: str) -> tuple:
 
 
 THEMES = {
-    "dark": Theme("dark", _hex("#0b0e14"), _hex("#000000"), _hex("#e6e6e6"), _hex("#5a6270"), 1.0),
-    "light": Theme("light", _hex("#ffffff"), _hex("#fbfbf8"), _hex("#1a1a1a"), _hex("#9a9a9a"), 0.85),
+    "dark": Theme("dark", _hex("#0b0e14"), _hex("#000000"), _hex("#e6e6e6"), _hex("#5a6270"), 0.74, 0.125,
+                  (0.74, 0.125)),
+    "light": Theme("light", _hex("#ffffff"), _hex("#fbfbf8"), _hex("#1a1a1a"), _hex("#9a9a9a"), 0.58, 0.098,
+                   (0.45, 0.076)),
 }
+
+#: OKLab hue (radians) of heading 0 (+x): the hue of sRGB red, so +x reads as red.
+HUE_OFFSET = np.radians(29.2)
 
 
 def get_theme(theme) -> Theme:
@@ -50,49 +67,76 @@ def get_theme(theme) -> Theme:
     return THEMES[theme]
 
 
-def hsv_to_rgb(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Vectorised HSV -> RGB, all arguments broadcast, hue in turns; shape ``(..., 3)``."""
-    h, s, v = np.broadcast_arrays(np.asarray(h, float) % 1.0, np.asarray(s, float), np.asarray(v, float))
-    k = (np.array([5.0, 3.0, 1.0]) + 6.0 * h[..., None]) % 6.0
-    return v[..., None] - (v * s)[..., None] * np.clip(np.minimum(k, 4.0 - k), 0.0, 1.0)
+def theme_of_color(color) -> Theme:
+    """The theme whose background suits ``color`` (any matplotlib colour): dark below
+    half luminance, light above."""
+    from matplotlib.colors import to_rgb
+
+    return THEMES["dark" if relative_luminance(np.asarray(to_rgb(color))) < 0.5 else "light"]
 
 
-def heading_hue(headings: np.ndarray) -> np.ndarray:
-    """Hue in turns ``[0, 1)`` of each heading's angle in the xy plane."""
-    headings = np.asarray(headings, dtype=float)
-    return (np.arctan2(headings[:, 1], headings[:, 0]) / (2 * np.pi)) % 1.0
+def relative_luminance(rgb) -> np.ndarray:
+    """WCAG relative luminance of sRGB colours in [0, 1] (last axis: R, G, B)."""
+    return _linear(np.asarray(rgb, float)) @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def _linear(srgb: np.ndarray) -> np.ndarray:
+    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+
+
+def _encode(linear: np.ndarray) -> np.ndarray:
+    linear = np.clip(linear, 0.0, 1.0)
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+
+
+def oklab_to_rgb(lightness, a, b) -> np.ndarray:
+    """sRGB in [0, 1], shape ``(..., 3)``, of OKLab colours (arguments broadcast;
+    colours outside sRGB are clipped)."""
+    L, a, b = np.broadcast_arrays(np.asarray(lightness, float), np.asarray(a, float), np.asarray(b, float))
+    l_ = (L + 0.3963377774 * a + 0.2158037573 * b) ** 3
+    m_ = (L - 0.1055613458 * a - 0.0638541728 * b) ** 3
+    s_ = (L - 0.0894841775 * a - 1.2914855480 * b) ** 3
+    rgb = np.stack([4.0767416621 * l_ - 3.3077115913 * m_ + 0.2309699292 * s_,
+                    -1.2684380046 * l_ + 2.6097574011 * m_ - 0.3413193965 * s_,
+                    -0.0041960863 * l_ - 0.7034186147 * m_ + 1.7076147010 * s_], axis=-1)
+    return _encode(rgb)
+
+
+def angle_colors(angle, theme: Theme, strength=1.0, ink: bool = False) -> np.ndarray:
+    """RGB of heading angles (radians, from +x toward +y): ``strength`` in [0, 1] scales
+    the chroma, 0 giving the grey of the same lightness; ``ink``: the theme's density-map
+    lightness and chroma instead of its particles'. Arguments broadcast."""
+    t = get_theme(theme)
+    lightness, chroma = t.ink if ink else (t.lightness, t.chroma)
+    hue = np.asarray(angle, float) + HUE_OFFSET
+    chroma = chroma * np.clip(strength, 0.0, 1.0)
+    return oklab_to_rgb(lightness, chroma * np.cos(hue), chroma * np.sin(hue))
 
 
 def heading_colors(headings: np.ndarray, theme: Theme) -> np.ndarray:
-    """``(N, 3)`` RGB in [0, 1] for ``(N, d)`` unit headings (3D: white toward +-z)."""
+    """``(N, 3)`` RGB in [0, 1] for ``(N, d)`` unit headings (3D: grey toward +-z)."""
     headings = np.asarray(headings, dtype=float)
-    saturation = 1.0
+    strength = 1.0
     if headings.shape[1] == 3:
-        saturation = np.sqrt(np.clip(1.0 - headings[:, 2] ** 2, 0.0, 1.0)) * 0.85 + 0.15
-    return hsv_to_rgb(heading_hue(headings), saturation, theme.value)
+        strength = np.sqrt(np.clip(1.0 - headings[:, 2] ** 2, 0.0, 1.0))
+    return angle_colors(np.arctan2(headings[:, 1], headings[:, 0]), theme, strength)
 
 
-def wheel_image(size: int, dim: int, theme: Theme) -> np.ndarray:
-    """RGBA key, ``size`` pixels square: a hue ring (2D) or a disc white at its centre (3D).
+def wheel_image(size: int, dim: int, theme: Theme, ink: bool = False) -> np.ndarray:
+    """RGBA key, ``size`` pixels square: a hue ring (2D) or a disc grey at its centre (3D),
+    in the colours of particles or (``ink``) of density maps.
 
     Pixel (row, column) follows image conventions, rows downward, so +y is up.
     """
     c = (np.arange(size) + 0.5) / size * 2 - 1
     x, y = np.meshgrid(c, -c)
     r = np.hypot(x, y)
-    hue = (np.arctan2(y, x) / (2 * np.pi)) % 1.0
-    if dim == 3:
-        inside = r <= 1.0
-        saturation = np.clip(r, 0, 1) * 0.85 + 0.15
-    else:
-        inside = (r <= 1.0) & (r >= 0.55)
-        saturation = np.ones_like(r)
+    inner = 0.0 if dim == 3 else 0.55
     rgba = np.zeros((size, size, 4))
-    rgba[..., :3] = hsv_to_rgb(hue, saturation, theme.value)
-    # soft (anti-aliased) rim: one pixel of falloff
-    edge = 1.0 / size * 2
+    rgba[..., :3] = angle_colors(np.arctan2(y, x), theme, np.clip(r, 0, 1) if dim == 3 else 1.0, ink)
+    edge = 2.0 / size  # one pixel of soft (anti-aliased) rim
     alpha = np.clip((1.0 - r) / edge, 0, 1)
-    if dim == 2:
-        alpha = np.minimum(alpha, np.clip((r - 0.55) / edge, 0, 1))
-    rgba[..., 3] = np.where(inside | (alpha > 0), alpha, 0.0)
+    if inner:
+        alpha = np.minimum(alpha, np.clip((r - inner) / edge, 0, 1))
+    rgba[..., 3] = alpha
     return rgba

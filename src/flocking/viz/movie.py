@@ -1,10 +1,13 @@
-"""Movies and the pictures a run leaves behind.
+"""Movies, single-frame pictures, and the pictures a run leaves behind.
 
 :func:`write_movie` streams frames from a trajectory through one reused :class:`Scene`
-into H.264 (``.mp4``, the ffmpeg that ``imageio-ffmpeg`` ships) or a ``.gif`` (Pillow):
-one frame in memory at a time for mp4. The file is written under a temporary name and
-renamed at the end, so a failed or interrupted movie leaves nothing half-written.
-:func:`after_run` is what ``flocking run`` calls when it is done.
+into H.264 (``.mp4``, the ffmpeg that ``imageio-ffmpeg`` ships) or a ``.gif`` (Pillow,
+one palette for the whole movie, dithered): one frame in memory at a time for mp4.
+A density map keeps one density scale for the whole movie, read from a few frames
+spread over it. :func:`write_picture` draws one frame as ``.png``, ``.svg`` or ``.pdf``.
+Files are written under a temporary name and renamed at the end, so a failed or
+interrupted one leaves nothing half-written. :func:`after_run` is what ``flocking run``
+calls when it is done.
 """
 
 from __future__ import annotations
@@ -15,10 +18,13 @@ import os
 import numpy as np
 
 from ..model import ParameterError
+from . import style as house
 from .colors import get_theme
-from .render import Scene, check_style, polar_order_figure
+from .render import Scene, check_style
 
 FORMATS = (".mp4", ".gif")
+#: Quality of movies (x264's constant rate factor: lower is better and larger).
+CRF = 18
 
 
 def _open(trajectory):
@@ -46,13 +52,32 @@ def select_frames(length: int, start=None, stop=None, stride=1) -> range:
     return indices
 
 
+def check_rotate(rotate: bool, dim: int) -> None:
+    if rotate and dim != 3:
+        raise ParameterError(f"rotate: turns the camera around a 3D box; this trajectory is {dim}D")
+
+
+def samples(indices, count: int = 5) -> list[int]:
+    """Up to ``count`` positions in ``indices``, evenly spread, first and last included."""
+    return sorted({int(round(x)) for x in np.linspace(0, len(indices) - 1, min(count, len(indices)))})
+
+
+def fix_density_scale(scene: Scene, traj, indices) -> None:
+    """Give a density movie one scale: the largest that a few of its frames ask for."""
+    if scene.style != "density" or scene.density_max is not None:
+        return
+    from .density import density_scale
+
+    scene.set_density_max(density_scale([scene.density_field(traj[indices[k]]) for k in samples(indices)]))
+
+
 def write_movie(trajectory, output, *, theme="dark", style="auto", fps=20.0, dpi=120, size=6.0,
                 start=None, stop=None, stride=1, arrow_scale=1.0, time_label=True, rotate=False,
-                azim=-60.0, elev=25.0, progress=False) -> str:
+                azim=-60.0, elev=25.0, progress=False, crf=CRF) -> str:
     """Write ``trajectory`` (a path, run folder or :class:`Trajectory`) to ``output``.
 
     ``output`` ends in ``.mp4`` (H.264) or ``.gif``. ``rotate`` turns a 3D camera once
-    around the box over the movie. Returns the output path.
+    around the box over the movie (a 2D trajectory is refused). Returns the output path.
     """
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
@@ -67,23 +92,28 @@ def write_movie(trajectory, output, *, theme="dark", style="auto", fps=20.0, dpi
         indices = select_frames(len(traj), start, stop, stride)
         first = traj[indices[0]]
         check_style(style, first.dim)
+        check_rotate(rotate, first.dim)
         scene = Scene.for_frame(first, traj.parameters, theme=theme, style=style, size=size, dpi=dpi,
                                 arrow_scale=arrow_scale, time_label=time_label, azim=azim, elev=elev)
+        fix_density_scale(scene, traj, indices)
         turn = 360.0 / len(indices) if rotate else 0.0
 
-        def frames():
-            for k, i in enumerate(indices):
-                frame = first if k == 0 else traj[i]
-                yield scene.draw(frame, azim=azim + k * turn if rotate else None).rgb()
+        def render(k):
+            frame = first if k == 0 else traj[indices[k]]
+            return scene.draw(frame, azim=azim + k * turn if rotate else None).rgb()
 
         from tqdm.auto import tqdm
 
-        stream = tqdm(frames(), total=len(indices), unit="frame", disable=not progress,
-                      desc=os.path.basename(output), dynamic_ncols=True, leave=False)
+        stream = tqdm((render(k) for k in range(len(indices))), total=len(indices), unit="frame",
+                      disable=not progress, desc=os.path.basename(output), dynamic_ncols=True, leave=False)
         folder = os.path.dirname(os.path.abspath(output))
         tmp = os.path.join(folder, f".{os.path.basename(output)}.part{ext}")
         try:
-            (_write_mp4 if ext == ".mp4" else _write_gif)(tmp, stream, scene.pixels, fps)
+            if ext == ".mp4":
+                encode_mp4(tmp, stream, scene.pixels, fps, crf)
+            else:
+                palette = gif_palette([render(k) for k in samples(indices, 3)])
+                encode_gif(tmp, stream, fps, palette)
             os.replace(tmp, output)
         finally:
             stream.close()
@@ -95,12 +125,13 @@ def write_movie(trajectory, output, *, theme="dark", style="auto", fps=20.0, dpi
     return output
 
 
-def _write_mp4(path, frames, pixels, fps) -> None:
+def encode_mp4(path, frames, pixels, fps, crf=CRF) -> None:
+    """H.264 (yuv420p) of RGB ``frames`` of ``pixels = (width, height)``, a multiple of 16."""
     import imageio_ffmpeg
 
     writer = imageio_ffmpeg.write_frames(path, pixels, fps=fps, codec="libx264", quality=None,
                                          pix_fmt_out="yuv420p", macro_block_size=16,
-                                         output_params=["-crf", "18", "-preset", "fast",
+                                         output_params=["-crf", str(int(crf)), "-preset", "fast",
                                                         "-movflags", "+faststart"])
     writer.send(None)
     try:
@@ -110,13 +141,55 @@ def _write_mp4(path, frames, pixels, fps) -> None:
         writer.close()
 
 
-def _write_gif(path, frames, pixels, fps) -> None:
-    # GIF needs every frame before it is written; each is kept as 1 byte a pixel (palette)
+def gif_palette(images, exact: int = 16):
+    """One 256-colour palette for a whole movie, from a few of its frames: their ``exact``
+    most frequent colours (backgrounds, text) as they are, the rest by maximum coverage,
+    which keeps the colours of small regions such as the colour wheel."""
     from PIL import Image
 
-    images = [Image.fromarray(rgb).quantize(colors=255, method=Image.Quantize.FASTOCTREE) for rgb in frames]
+    stacked = np.concatenate(list(images), axis=0)
+    colours, counts = np.unique(stacked.reshape(-1, 3), axis=0, return_counts=True)
+    frequent = colours[np.argsort(-counts, kind="stable")[:exact]]
+    rest = Image.fromarray(stacked).quantize(colors=256 - len(frequent), method=Image.Quantize.MAXCOVERAGE,
+                                             dither=Image.Dither.NONE)
+    entries = np.vstack([frequent, np.reshape(rest.getpalette()[:3 * (256 - len(frequent))], (-1, 3))])
+    palette = Image.new("P", (1, 1))
+    palette.putpalette(entries.astype(np.uint8).ravel().tolist())
+    return palette
+
+
+def encode_gif(path, frames, fps, palette) -> None:
+    """A looping GIF of RGB ``frames``, each dithered (Floyd-Steinberg) onto ``palette``;
+    every frame is kept as one byte a pixel until the file is written."""
+    from PIL import Image
+
+    images = [Image.fromarray(rgb).quantize(palette=palette, dither=Image.Dither.FLOYDSTEINBERG)
+              for rgb in frames]
     images[0].save(path, save_all=True, append_images=images[1:], duration=1000.0 / fps, loop=0,
-                   disposal=1)
+                   disposal=1, optimize=False)
+
+
+def write_picture(trajectory, output, *, frame=-1, theme="dark", style="auto", dpi=None, size=6.0,
+                  arrow_scale=1.0, time_label=True, azim=-60.0, elev=25.0, title=True) -> str:
+    """One frame of ``trajectory`` (index ``frame``, default the last) as a ``.png``,
+    ``.svg`` or ``.pdf`` picture. Returns the output path."""
+    output = os.fspath(output)
+    house.check_format(output)
+    dpi = house.check_dpi(dpi) or house.DPI
+    get_theme(theme)
+    traj, owned = _open(trajectory)
+    try:
+        if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) \
+                or not -len(traj) <= frame < len(traj):
+            raise ParameterError(f"frame: must be a frame index in [{-len(traj)}, {len(traj) - 1}] (got {frame!r})")
+        shown = traj[int(frame)]
+        scene = Scene.for_frame(shown, traj.parameters, theme=theme, style=style, size=size, dpi=dpi,
+                                arrow_scale=arrow_scale, time_label=time_label, azim=azim, elev=elev,
+                                title=title)
+        return scene.draw(shown).save(output)
+    finally:
+        if owned:
+            traj.close()
 
 
 def read_observables(path: str) -> tuple[np.ndarray, np.ndarray]:
@@ -127,36 +200,44 @@ def read_observables(path: str) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(steps), np.asarray(phi)
 
 
-def write_plots(run_dir: str, theme: str = "dark") -> list[str]:
-    """``snapshot.png`` (last frame) and ``polar_order.png`` in ``run_dir``; their paths."""
+def check_picture_options(theme="dark", dpi=None, fmt="png") -> None:
+    """Refuse a bad theme, resolution or picture format before anything runs."""
+    get_theme(theme)
+    house.check_dpi(dpi)
+    if fmt not in house.FORMATS:
+        raise ParameterError(f"plot_format: must be one of {', '.join(house.FORMATS)} (got {fmt!r})")
+
+
+def write_plots(run_dir: str, theme: str = "dark", dpi=None, fmt: str = "png", size=6.0) -> list[str]:
+    """``snapshot.<fmt>`` (last frame) and ``polar_order.<fmt>`` in ``run_dir``; their paths."""
+    from .timeseries import polar_order_figure
+
+    check_picture_options(theme, dpi, fmt)
     traj, _ = _open(run_dir)
     written = []
     with traj:
         last = traj[-1]
         params = traj.parameters
-        scene = Scene.for_frame(last, params, theme=theme)
-        path = os.path.join(run_dir, "snapshot.png")
-        scene.draw(last).save(path)
-        written.append(path)
+        written.append(write_picture(traj, os.path.join(run_dir, f"snapshot.{fmt}"), theme=theme, dpi=dpi,
+                                     size=size))
     obs = os.path.join(run_dir, "observables.csv")
     if os.path.isfile(obs):
         steps, phi = read_observables(obs)
         fig = polar_order_figure(steps, phi, params, last.dim, last.n, last.box_lengths, theme=theme)
-        path = os.path.join(run_dir, "polar_order.png")
-        fig.savefig(path, facecolor=fig.get_facecolor())
-        written.append(path)
+        written.append(house.save(fig, os.path.join(run_dir, f"polar_order.{fmt}"), dpi=dpi))
     return written
 
 
-def after_run(run_dir: str, plots: bool = True, movie: bool = False, quiet: bool = False) -> None:
+def after_run(run_dir: str, plots: bool = True, movie: bool = False, quiet: bool = False,
+              theme: str = "dark", dpi=None, fmt: str = "png") -> None:
     """What ``flocking run`` does when a run ends: pictures unless ``plots=False``, a movie if asked."""
     import click
 
     if plots:
-        written = write_plots(run_dir)
+        written = write_plots(run_dir, theme=theme, dpi=dpi, fmt=fmt)
         if not quiet:
             click.echo(f"flocking: wrote {', '.join(os.path.basename(p) for p in written)}", err=True)
     if movie:
-        path = write_movie(run_dir, os.path.join(run_dir, "movie.mp4"), progress=not quiet)
+        path = write_movie(run_dir, os.path.join(run_dir, "movie.mp4"), theme=theme, progress=not quiet)
         if not quiet:
             click.echo(f"flocking: wrote {path}", err=True)

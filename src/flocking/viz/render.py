@@ -1,121 +1,174 @@
 """Frames as pictures: one matplotlib figure built once, whose artists each frame updates.
 
-A :class:`Scene` lays out the box, a title with the run's parameters, a time label and a
-colour-wheel key, on an Agg canvas (no display needed). ``scene.draw(frame)`` updates
-the artists and ``scene.rgb()`` returns the pixels, so a movie costs one redraw a frame,
-never a new figure. Three styles:
+A :class:`Scene` lays out the box, a title with the run's parameters, a time label, the
+colour-wheel key and (density maps) a colour bar, in the house style of
+:mod:`.style`, on an Agg canvas (no display needed). Its layout is settled once, so
+``scene.draw(frame)`` only updates artists and ``scene.rgb()`` returns the pixels: a
+movie costs one redraw a frame, never a new figure. Three styles:
 
 * ``arrows`` (2D): one arrow per particle coloured by heading (matplotlib quiver);
-* ``density`` (2D): hue = local mean heading, brightness = density (:mod:`.raster`);
-* ``perspective`` (3D): depth-cued particles through a perspective camera.
+* ``density`` (2D): brightness = density with a colour bar, hue = local mean heading
+  where there is local order (:mod:`.density`);
+* ``perspective`` (3D): shaded cones along the headings through a perspective camera
+  (:mod:`.perspective`), with an axis triad.
 
-``auto`` picks arrows while each arrow gets a few pixels, density beyond (about 3e4
-particles at the default size), and perspective in 3D.
+``auto`` picks arrows while each arrow gets :data:`ARROW_MIN_POINTS` on the page
+(about 3e4 particles at the default size), density beyond, and perspective in 3D.
 
 >>> import flocking
 >>> frame = flocking.Frame(0, 2, [4, 4], np.zeros((1, 3)), np.array([[0.5, 0, 0]]))
->>> scene = Scene.for_frame(frame, size=2.0, dpi=64)
->>> scene.draw(frame).rgb().shape
-(128, 128, 3)
+>>> scene = Scene.for_frame(frame, size=3.0, dpi=64)
+>>> rgb = scene.draw(frame).rgb()
+>>> rgb.shape[1], rgb.shape == (scene.pixels[1], scene.pixels[0], 3)
+(192, True)
 """
 
 from __future__ import annotations
 
+import os
+import warnings
+
 import numpy as np
 
-from ..model import ParameterError
-from .colors import get_theme, heading_colors, wheel_image
-from .raster import density_bins, density_image, perspective_image
+from ..model import Model, ParameterError
+from . import style as house
+from .colors import angle_colors, get_theme, heading_colors, theme_of_color, wheel_image
+from .density import GAMMA, DensityField, density_colormap, density_image, density_scale, density_ticks, grid_shape
+from .perspective import Camera, glyph_length, perspective_image
 
 STYLES = ("auto", "arrows", "density", "perspective")
 
-#: ``auto`` draws arrows while the mean spacing between particles is at least this many pixels.
-ARROW_MIN_PIXELS = 3.5
+#: ``auto`` draws arrows while the mean spacing between particles is at least this many
+#: points (1/72 inch) on the page, whatever the resolution.
+ARROW_MIN_POINTS = 2.0
 
 
-def check_style(style: str, dim: int) -> str:
-    if style not in STYLES:
-        raise ParameterError(f"style: must be one of {', '.join(STYLES)} (got {style!r})")
-    if dim == 3 and style in ("arrows", "density"):
-        raise ParameterError(f"style: 3D frames are drawn in perspective (got {style!r})")
-    if dim == 2 and style == "perspective":
+def check_style(style_name: str, dim: int) -> str:
+    if style_name not in STYLES:
+        raise ParameterError(f"style: must be one of {', '.join(STYLES)} (got {style_name!r})")
+    if dim == 3 and style_name in ("arrows", "density"):
+        raise ParameterError(f"style: 3D frames are drawn in perspective (got {style_name!r})")
+    if dim == 2 and style_name == "perspective":
         raise ParameterError("style: perspective is for 3D frames (got 'perspective')")
-    return style
+    return style_name
 
 
-def choose_style(style: str, dim: int, n: int, box_lengths, pixels: int) -> str:
-    """Resolve ``auto``: perspective in 3D, else arrows if they get room, else density."""
-    style = check_style(style, dim)
-    if style != "auto":
-        return style
+def choose_style(style_name: str, dim: int, n: int, box_lengths, points: float) -> str:
+    """Resolve ``auto``: perspective in 3D, else arrows if they get room, else density.
+    ``points`` is the longer side of the box on the page, in points."""
+    style_name = check_style(style_name, dim)
+    if style_name != "auto":
+        return style_name
     if dim == 3:
         return "perspective"
-    spacing = np.sqrt(np.prod(box_lengths[:2]) / max(n, 1)) * pixels / max(box_lengths[:2])
-    return "arrows" if spacing >= ARROW_MIN_PIXELS else "density"
+    lengths = np.asarray(box_lengths, float)[:2]
+    spacing = np.sqrt(np.prod(lengths) / max(n, 1)) * points / lengths.max()
+    return "arrows" if spacing >= ARROW_MIN_POINTS else "density"
+
+
+def as_parameters(parameters) -> dict | None:
+    """A run's parameters (``{"model": {...}, ...}``) from a :class:`~flocking.Model`, the
+    parameters a trajectory stored, or a model's ``to_dict()``; ``None`` stays ``None``."""
+    if parameters is None:
+        return None
+    if isinstance(parameters, Model):
+        return {"model": parameters.to_dict()}
+    if isinstance(parameters, dict):
+        return parameters if "model" in parameters else {"model": dict(parameters)}
+    raise ParameterError(f"parameters: must be a Model or a dict of parameters (got {type(parameters).__name__})")
+
+
+def positive(name: str, value) -> float:
+    """``value`` as a finite float > 0, or a :class:`ParameterError` naming ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not (np.isfinite(number) and number > 0):
+        raise ParameterError(f"{name}: must be a number > 0 (got {value!r})")
+    return number
 
 
 def _g(value) -> str:
     return f"{value:.3g}" if isinstance(value, float) else str(value)
 
 
-def describe(parameters: dict | None, dim: int, n: int, box_lengths) -> tuple[str, str]:
-    """Two title lines: what was simulated, and with which parameters."""
+def describe(parameters, dim: int, n: int, box_lengths) -> tuple[str, str]:
+    """Title and caption (mathtext): what was simulated, and the parameters that matter,
+    joined by ``" \u00b7 "`` so :func:`.style.title` can wrap them."""
     sides = [float(x) for x in box_lengths]
-    box = f"L = {_g(sides[0])}" if len(set(sides)) == 1 else "box " + " \u00d7 ".join(map(_g, sides))
-    first = f"Vicsek model \u00b7 {dim}D \u00b7 N = {n:,} \u00b7 {box}"
-    if not parameters or "model" not in parameters:
+    box = f"$L$ = {sides[0]:.4g}" if len(set(sides)) == 1 else "box " + " \u00d7 ".join(f"{x:.4g}" for x in sides)
+    first = f"Vicsek model \u00b7 {dim}D \u00b7 $N$ = {n:,} \u00b7 {box}"
+    parameters = as_parameters(parameters)
+    if not parameters:
         return first, ""
     m = parameters["model"]
-    noise = f"\u03b7 = {_g(m['noise'])}" + (" (vectorial)" if m.get("noise_type") == "vectorial" else "")
-    near = (f"k = {m['k']} nearest" if m.get("neighbours") == "topological" else f"R = {_g(m['radius'])}")
-    parts = [noise, f"v\u2080 = {_g(m['speed'])}", near]
+    noise = fr"$\eta$ = {_g(m['noise'])}" + (" (vectorial)" if m.get("noise_type") == "vectorial" else "")
+    near = (f"$k$ = {m['k']} nearest" if m.get("neighbours") == "topological" else f"$R$ = {_g(m['radius'])}")
+    parts = [noise, f"$v_0$ = {_g(m['speed'])}", near]
     if m.get("speeds") == "uniform":
         parts.append("speeds uniform")
     if m.get("alignment", 1.0) != 1.0:
-        parts.append(f"\u03b5 = {_g(m['alignment'])}")
+        parts.append(fr"$\varepsilon$ = {_g(m['alignment'])}")
     if m.get("delay", 0):
-        parts.append(f"delay {m['delay']}")
+        parts.append(fr"delay $\tau$ = {m['delay']}")
     if m.get("dt", 1.0) != 1.0:
-        parts.append(f"dt = {_g(m['dt'])}")
+        parts.append(fr"$\Delta t$ = {_g(m['dt'])}")
     if m.get("update", "backward") != "backward":
         parts.append(f"{m['update']} update")
     parts.append(f"seed {m.get('seed', 0)}")
     return first, " \u00b7 ".join(parts)
 
 
-def time_text(frame, dt: float = 1.0) -> str:
+def time_text(frame, dt: float = 1.0, lines: int = 1) -> str:
+    """``step 1,000  phi = 0.934`` (with the time if ``dt != 1``), on one line or two."""
     text = f"step {frame.step:,}"
     if dt != 1.0:
-        text += f"  (t = {frame.step * dt:.4g})"
-    return text + f"   \u03c6 = {frame.polar_order():.3f}"
+        text += f" ($t$ = {frame.step * dt:,.6g})"
+    return text + ("\n" if lines > 1 else "   ") + fr"$\varphi$ = {frame.polar_order:.3f}"
 
 
 class FrameArtist:
-    """The particles of one frame on a matplotlib axes; :meth:`update` redraws them in place."""
+    """The particles of one frame on a matplotlib axes; :meth:`update` redraws them in place.
+
+    It changes nothing outside the axes (it sets their limits, aspect and, for images,
+    background). Colours come from :meth:`colors` (the heading), the one place another
+    colour source would plug in. ``density_max`` fixes the top of the density scale
+    (default: from the first frame).
+    """
 
     def __init__(self, ax, frame, theme="dark", style="auto", arrow_scale=1.0, pixels=None,
-                 azim=-60.0, elev=25.0):
+                 azim=-60.0, elev=25.0, density_max=None, triad=True):
         self.ax = ax
         self.theme = get_theme(theme)
         self.dim = frame.dim
         self.box = np.asarray(frame.box_lengths, dtype=float)
+        bbox = ax.get_window_extent()
         if pixels is None:
-            bbox = ax.get_window_extent()
-            pixels = int(max(bbox.width, bbox.height))
+            pixels = max(bbox.width, bbox.height)
         self.pixels = max(int(pixels), 16)
-        self.style = choose_style(style, frame.dim, frame.n, self.box, self.pixels)
-        self.arrow_scale = float(arrow_scale)
-        if not np.isfinite(self.arrow_scale) or self.arrow_scale <= 0:
-            raise ParameterError(f"arrow_scale: must be a number > 0 (got {arrow_scale!r})")
+        points = max(bbox.width, bbox.height) * 72.0 / ax.figure.dpi
+        self.style = choose_style(style, frame.dim, frame.n, self.box, points)
+        self.arrow_scale = positive("arrow_scale", arrow_scale)
         self.azim, self.elev = float(azim), float(elev)
-        ax.set_facecolor(self.theme.background)
+        self.density_max = None if density_max is None else positive("density_max", density_max)
         if self.dim == 2:
             lx, ly = self.box[:2]
             ax.set_xlim(-lx / 2, lx / 2)
             ax.set_ylim(-ly / 2, ly / 2)
             ax.set_aspect("equal")
+        if self.style == "perspective":
+            ax.set_facecolor(self.theme.background)
+            ax.set_axis_off()
+        elif self.style == "density":
+            ax.set_facecolor(self.theme.background)
         self._artist = None
+        self._triad = self._make_triad() if self.style == "perspective" and triad else None
         self.update(frame)
+
+    def colors(self, frame) -> np.ndarray:
+        """``(N, 3)`` RGB of the particles: their headings' colours."""
+        return heading_colors(frame.headings, self.theme)
 
     @property
     def arrow_length(self) -> float:
@@ -128,13 +181,15 @@ class FrameArtist:
             self.azim = float(azim)
         if self.style == "arrows":
             self._arrows(frame)
+        elif self.style == "density":
+            self._density(frame)
         else:
-            self._image(frame)
+            self._perspective(frame)
 
     def _arrows(self, frame) -> None:
         heads = frame.headings
         length = self.arrow_length
-        colors = heading_colors(heads, self.theme)
+        colors = self.colors(frame)
         uv = heads * length
         if self._artist is None or len(self._artist.U) != frame.n:
             if self._artist is not None:
@@ -149,90 +204,171 @@ class FrameArtist:
             self._artist.set_UVC(uv[:, 0], uv[:, 1])
             self._artist.set_facecolor(colors)
 
-    def _image(self, frame) -> None:
-        if self.style == "density":
-            shape = density_bins(frame.n, self.box, self.pixels)
-            rgb = density_image(frame.positions, frame.headings, self.box, shape, self.theme)
-            lx, ly = self.box[:2]
-            extent = (-lx / 2, lx / 2, -ly / 2, ly / 2)
-        else:
-            rgb = perspective_image(frame.points, frame.headings, self.box, self.pixels, self.theme,
-                                    azim=self.azim, elev=self.elev)
-            extent = None
+    def density_field(self, frame) -> DensityField:
+        return DensityField(frame.positions, frame.headings, self.box, grid_shape(self.box, self.pixels))
+
+    def _density(self, frame) -> None:
+        field = self.density_field(frame)
+        if self.density_max is None:
+            self.density_max = density_scale([field])
+        self._show(density_image(field, self.theme, self.density_max), "bilinear")
+
+    def _perspective(self, frame) -> None:
+        rgb = perspective_image(frame.points, frame.headings, self.box, self.pixels, self.theme,
+                                azim=self.azim, elev=self.elev,
+                                length=glyph_length(frame.n, self.box, self.arrow_scale),
+                                colors=self.colors(frame))
+        self._show(rgb, "antialiased")
+        if self._triad is not None:
+            self._update_triad()
+
+    def _show(self, rgb, interpolation) -> None:
         rgb = np.clip(rgb, 0.0, 1.0)
         if self._artist is None or self._artist.get_array().shape != rgb.shape:
             if self._artist is not None:
                 self._artist.remove()
-            self._artist = self.ax.imshow(rgb, extent=extent, interpolation="bilinear"
-                                          if self.style == "density" else "antialiased")
+            extent = None
+            if self.dim == 2:
+                lx, ly = self.box[:2]
+                extent = (-lx / 2, lx / 2, -ly / 2, ly / 2)
+            self._artist = self.ax.imshow(rgb, extent=extent, interpolation=interpolation, zorder=0)
         else:
             self._artist.set_data(rgb)
 
+    # -- the axis triad of 3D views ----------------------------------------------------
+
+    _TRIAD_ORIGIN, _TRIAD_LENGTH = np.array([0.09, 0.09]), 0.065
+
+    def _make_triad(self):
+        t = self.theme
+        size = 0.8 * house.fontsize(self.ax.figure)
+        lines, labels = [], []
+        for angle, name in ((0.0, "x"), (120.0, "y"), (240.0, "z")):  # red, green, blue, as the headings
+            color = tuple(angle_colors(np.radians(angle), t))
+            (line,) = self.ax.plot([], [], color=color, lw=1.6, transform=self.ax.transAxes, zorder=6,
+                                   solid_capstyle="round")
+            text = self.ax.text(0, 0, f"${name}$", transform=self.ax.transAxes, color=color, fontsize=size,
+                                ha="center", va="center", zorder=6)
+            lines.append(line)
+            labels.append(text)
+        return lines, labels
+
+    def _update_triad(self) -> None:
+        cam = Camera(self.box, 100, self.azim, self.elev)
+        o, length = self._TRIAD_ORIGIN, self._TRIAD_LENGTH
+        for axis, line, text in zip(np.eye(3), *self._triad):
+            d = np.array([cam.right @ axis, cam.up @ axis])
+            tip = o + length * d
+            line.set_data([o[0], tip[0]], [o[1], tip[1]])
+            label = o + (length + 0.028) * (d / max(np.linalg.norm(d), 0.35))
+            text.set_position(label)
+
 
 class Scene:
-    """A whole picture: box, title, time label and colour key, on its own Agg canvas.
+    """A whole picture: box, title, time label, heading key and density colour bar,
+    on its own Agg canvas (or through pyplot, so a notebook shows it).
 
-    ``size`` is the figure width in inches and ``dpi`` its pixels per inch; the pixel
-    size is rounded to a multiple of 16 so that H.264 takes it as it is.
+    ``size`` is a name of :data:`.style.SIZES` (``column``, ``page``, ``slide``), a width
+    in inches (the height follows the box) or ``(width, height)``; ``dpi`` its pixels
+    per inch. The pixel size is rounded to a multiple of 16 so that H.264 takes it as
+    it is; ``scene.pixels`` is ``(width, height)``.
     """
 
     def __init__(self, dim, n, box_lengths, parameters=None, theme="dark", style="auto", size=6.0,
-                 dpi=120, arrow_scale=1.0, time_label=True, azim=-60.0, elev=25.0, pyplot=False):
-        from matplotlib.figure import Figure
+                 dpi=120, arrow_scale=1.0, time_label=True, azim=-60.0, elev=25.0, pyplot=False,
+                 density_max=None, title=True):
+        from matplotlib import colors as mcolors
+        from matplotlib.cm import ScalarMappable
 
-        self.theme = get_theme(theme)
+        self.theme = t = get_theme(theme)
         check_style(style, dim)
-        size, dpi = float(size), float(dpi)
-        if not np.isfinite(size) or not 0.5 <= size <= 100:
-            raise ParameterError(f"size: must be in [0.5, 100] inches (got {size!r})")
-        if not np.isfinite(dpi) or not 10 <= dpi <= 1000:
-            raise ParameterError(f"dpi: must be in [10, 1000] (got {dpi!r})")
+        dpi = house.check_dpi(dpi) or house.DPI
+        width, height, fs = house.resolve_size(size)
+        if isinstance(size, str) and size != "slide":  # a paper's width; the height follows the box
+            height = None
+        positive("arrow_scale", arrow_scale)
+        if density_max is not None:
+            density_max = positive("density_max", density_max)
         self.dim = dim
         self.box = np.asarray(box_lengths, dtype=float)[:dim]
-        aspect = self.box[1] / self.box[0] if dim == 2 else 1.0
-        aspect = float(np.clip(aspect, 0.25, 4.0))
-        # the box takes 72 % of the width, the key column the right; title band and margins
-        # add 24 % of the width to the height
-        width_px = 16 * max(4, round(size * dpi / 16))
-        box_w = 0.72 * width_px
-        height_px = 16 * max(4, round((box_w * aspect + 0.24 * width_px) / 16))
+        aspect = float(np.clip(self.box[1] / self.box[0], 0.25, 4.0)) if dim == 2 else 1.0
+        auto_height = height is None
+        bands = (3.6 if title else 1.2) * fs / 72 * 1.35 + 0.15  # title, caption, x label
+        if auto_height:  # at most: the box takes about 70 % of the width
+            height = 0.7 * width * aspect + bands
+        width_px = 16 * max(4, round(width * dpi / 16))
+        height_px = 16 * max(4, round(height * dpi / 16))
         self.pixels = (width_px, height_px)
-        figsize = (width_px / dpi, height_px / dpi)
-        if pyplot:
-            import matplotlib.pyplot as plt
-
-            self.figure = plt.figure(figsize=figsize, dpi=dpi)
-        else:
-            from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-            self.figure = Figure(figsize=figsize, dpi=dpi)
-            FigureCanvasAgg(self.figure)
-        fig, t = self.figure, self.theme
-        fig.set_facecolor(t.figure)
-        fs = max(5.0, 9.5 * width_px / dpi / 6.0)  # font size follows the figure's width
-        W, H = width_px, height_px
-        box_h = min(box_w * aspect, H - 0.24 * W)
-        box_w = box_h / aspect
-        left, bottom = 0.085 * W, 0.07 * W
-        self.ax = fig.add_axes([left / W, bottom / H, box_w / W, box_h / H])
+        self.figure = fig = house.new_figure(width_px / dpi, height_px / dpi, t, fs, dpi, pyplot)
+        points = 72 * min(0.7 * width, (height - bands) / aspect) * max(1.0, aspect)  # the box's longer side
+        self.style = choose_style(style, dim, n, self.box, points)
+        density = self.style == "density"
+        key_width = max(0.22 * width, 9.5 * fs / 72)  # inches: the wheel and its labels at any size
+        grid = fig.add_gridspec(1, 2, width_ratios=[width - key_width, key_width])
+        self.ax = fig.add_subplot(grid[0, 0])
+        side = grid[0, 1].subgridspec(2, 1, height_ratios=[1.0, 1.6] if density else [1.0, 1.0])
+        self.key_axes = fig.add_subplot(side[0])
+        # a box narrower than its slot (a wide figure) sits next to its keys, not apart
+        self.ax.set_anchor("E")
+        self.key_axes.set_anchor("W")
         self._style_axes(fs)
-        title, subtitle = describe(parameters, dim, n, self.box)
-        top = (bottom + box_h) / H
-        fig.text(left / W, top + 0.095 * W / H, title, color=t.text, fontsize=1.25 * fs,
-                 fontweight="bold", va="bottom", ha="left")
-        fig.text(left / W, top + 0.035 * W / H, subtitle, color=t.text, fontsize=fs, va="bottom",
-                 ha="left", alpha=0.85)
-        self._key(dim, fs, (left + box_w) / W, top)
+        self._key(dim, fs, ink=density)
+        self.colorbar = None
+        if density:
+            cax = side[1].subgridspec(1, 3, width_ratios=[1, 0.5, 1])[0, 1]
+            cax = fig.add_subplot(cax)
+            cax.set_anchor("W")
+            self._density_norm = mcolors.PowerNorm(GAMMA, vmin=0.0, vmax=density_max or 1.0)
+            mappable = ScalarMappable(norm=self._density_norm, cmap=density_colormap(t))
+            self.colorbar = fig.colorbar(mappable, cax=cax)
+            self.colorbar.set_label(house.LABELS["density"], color=t.text, fontsize=0.9 * fs)
+            cax.tick_params(colors=t.text, labelsize=0.8 * fs)
+            self.colorbar.outline.set_edgecolor(t.edge)
+        if title:
+            main, details = describe(parameters, dim, n, self.box)
+            house.title(fig, main, details)
         self.time_label = None
         if time_label:
             self.time_label = self.ax.text(
                 0.015, 0.985, "", transform=self.ax.transAxes, ha="left", va="top", color=t.text,
-                fontsize=fs, family="monospace", zorder=5,
-                bbox=dict(boxstyle="round,pad=0.3", fc=t.figure, ec="none", alpha=0.65))
-        self.dt = (parameters or {}).get("model", {}).get("dt", 1.0)
-        self._args = dict(theme=self.theme, style=style, arrow_scale=arrow_scale, azim=azim, elev=elev,
-                          pixels=int(max(box_w, box_h)))
+                fontsize=0.85 * fs, family="monospace", zorder=7,
+                bbox=dict(boxstyle="round,pad=0.3", fc=t.figure, ec="none", alpha=0.7))
+        self.dt = (as_parameters(parameters) or {}).get("model", {}).get("dt", 1.0)
+        # settle the layout once, with the box's axes at their final size; then freeze it
+        if dim == 2:
+            self.ax.set_xlim(-self.box[0] / 2, self.box[0] / 2)
+            self.ax.set_ylim(-self.box[1] / 2, self.box[1] / 2)
+        self.ax.set_aspect("equal")
+        self._layout()
+        if auto_height:  # give back the height that the box's aspect leaves empty
+            self.ax.apply_aspect()
+            slack = (self.ax.get_position(original=True).height - self.ax.get_position().height) * height_px
+            if slack >= 16:
+                height_px -= 16 * int(slack // 16)
+                self.pixels = (width_px, height_px)
+                fig.set_size_inches(width_px / dpi, height_px / dpi)
+                self._layout()
+        fig.set_layout_engine("none")
+        self._centre()
+        bbox = self.ax.get_window_extent()
+        self._args = dict(theme=t, style=self.style, arrow_scale=arrow_scale, azim=azim, elev=elev,
+                          pixels=int(round(max(bbox.width, bbox.height))), density_max=density_max)
         self.artist = None
+
+    def _centre(self) -> None:
+        """Move the box and its keys together to the middle of a figure wider than they need."""
+        for ax in self.figure.axes:
+            ax.apply_aspect()
+        slack = self.ax.get_position(original=True).width - self.ax.get_position().width
+        if slack > 0.01:
+            for ax in self.figure.axes:
+                p = ax.get_position()
+                ax.set_position([p.x0 - slack / 2, p.y0, p.width, p.height])
+
+    def _layout(self) -> None:
+        with warnings.catch_warnings():  # a tiny figure keeps the grid's plain layout
+            warnings.filterwarnings("ignore", "constrained_layout not applied")
+            self.figure.get_layout_engine().execute(self.figure)
 
     @classmethod
     def for_frame(cls, frame, parameters=None, **options) -> Scene:
@@ -244,42 +380,74 @@ class Scene:
 
     def _style_axes(self, fs: float) -> None:
         ax, t = self.ax, self.theme
+        house.style_axes(ax, t)
+        ax.grid(False)
         if self.dim == 3:
             ax.set_axis_off()
             return
-        ax.set_xlabel("x", color=t.text, fontsize=fs)
-        ax.set_ylabel("y", color=t.text, fontsize=fs, rotation=0, labelpad=fs * 0.8)
-        ax.tick_params(colors=t.text, labelsize=0.85 * fs, length=3)
-        for spine in ax.spines.values():
-            spine.set_color(t.edge)
+        house.label_axes(ax, "x", "y")
+        ax.set_facecolor(t.background)
 
-    def _key(self, dim: int, fs: float, x0: float, top: float) -> None:
-        W, H = self.pixels
-        side = 0.105 * W
-        column = 1.0 - x0  # figure fraction right of the box
-        ax = self.figure.add_axes([x0 + (column - side / W) / 2, top - side / H - 0.03 * W / H,
-                                   side / W, side / H])
-        ax.imshow(wheel_image(128, dim, self.theme), interpolation="antialiased")
+    def _key(self, dim: int, fs: float, ink: bool = False) -> None:
+        # every label lies inside the axes' limits, so the layout never shrinks the wheel
+        ax, t = self.key_axes, self.theme
+        ax.imshow(wheel_image(192, dim, t, ink), interpolation="antialiased", extent=(-1, 1, -1, 1))
+        ax.set_xlim(-2.0, 2.0)
+        ax.set_ylim(-2.3, 1.65)
         ax.set_axis_off()
-        t = self.theme
-        label = "heading" if dim == 2 else "heading\n(pale: \u00b1z)"
-        ax.text(0.5, -0.2, label, transform=ax.transAxes, ha="center", va="top", color=t.text,
-                fontsize=0.85 * fs)
-        for angle, text in ((0, "0\u00b0"), (90, "90\u00b0"), (180, "180\u00b0"), (270, "270\u00b0")):
+        small = 0.75 * fs
+        for angle, text, ha in ((0, "0\u00b0", "left"), (90, "90\u00b0", "center"), (180, "180\u00b0", "right"),
+                                (270, "270\u00b0", "center")):
             a = np.radians(angle)
-            ax.text(0.5 + 0.64 * np.cos(a), 0.5 + 0.64 * np.sin(a), text, transform=ax.transAxes,
-                    ha="center", va="center", color=t.text, fontsize=0.62 * fs, alpha=0.8)
-        self.key_axes = ax
+            ax.text(1.1 * np.cos(a), 1.1 * np.sin(a), text, ha=ha, va="center" if angle in (0, 180)
+                    else ("bottom" if angle == 90 else "top"), color=t.text, fontsize=small)
+        label = "heading" if dim == 2 else "heading\n(grey: $\\pm z$)"
+        if ink:
+            label = "heading\n(grey: no order)"
+        self._key_label = ax.text(0.0, -1.62, label, ha="center", va="top", color=t.text, fontsize=small,
+                                  linespacing=1.2)
+
+    @property
+    def density_max(self) -> float | None:
+        """Top of the density scale (density maps; ``None`` until set or drawn)."""
+        return self._args["density_max"]
+
+    def set_density_max(self, value: float) -> None:
+        """Fix the top of the density scale, for the colour bar and every frame after."""
+        self._args["density_max"] = value
+        if self.artist is not None:
+            self.artist.density_max = value
+        if self.colorbar is not None:
+            self._density_norm.vmax = value
+            self.colorbar.update_normal(self.colorbar.mappable)
+            self.colorbar.set_ticks(density_ticks(value))
+
+    def _narrow(self, text: str) -> bool:
+        """Whether ``text`` in the time label's font takes more than 70 % of the box's width."""
+        get_renderer = getattr(self.figure.canvas, "get_renderer", None)
+        if get_renderer is None:  # a canvas that cannot measure text
+            return False
+        renderer = get_renderer()
+        width, _, _ = renderer.get_text_width_height_descent(text, self.time_label.get_fontproperties(),
+                                                             ismath=True)
+        return width > 0.7 * self.ax.get_window_extent().width
+
+    def density_field(self, frame) -> DensityField:
+        """The :class:`DensityField` of ``frame`` on this scene's grid."""
+        return DensityField(frame.positions, frame.headings, self.box, grid_shape(self.box, self._args["pixels"]))
 
     def draw(self, frame, azim: float | None = None) -> Scene:
         if self.artist is None:
             self.artist = FrameArtist(self.ax, frame, **self._args)
             if self.artist.style == "density":
-                self.key_axes.texts[0].set_text("hue: heading\nstrength: density")
+                self.set_density_max(self.artist.density_max)
         else:
             self.artist.update(frame, azim=azim)
         if self.time_label is not None:
-            self.time_label.set_text(time_text(frame, self.dt))
+            text = time_text(frame, self.dt)
+            if self._narrow(text):
+                text = time_text(frame, self.dt, lines=2)
+            self.time_label.set_text(text)
         return self
 
     def rgb(self) -> np.ndarray:
@@ -287,55 +455,28 @@ class Scene:
         self.figure.canvas.draw()
         return np.asarray(self.figure.canvas.buffer_rgba())[..., :3].copy()
 
-    def save(self, path: str) -> None:
-        self.figure.savefig(path, dpi=self.figure.dpi, facecolor=self.figure.get_facecolor())
+    def save(self, path: str | os.PathLike) -> str:
+        """Write the picture to ``path`` (``.png``, ``.svg`` or ``.pdf``), atomically."""
+        return house.save(self.figure, path, dpi=self.figure.dpi)
 
 
-def plot_frame(frame, ax=None, theme="dark", style="auto", arrow_scale=1.0, parameters=None,
+def plot_frame(frame, ax=None, theme=None, style="auto", arrow_scale=1.0, parameters=None,
                size=6.0, dpi=100, azim=-60.0, elev=25.0):
     """Draw a :class:`~flocking.Frame`; returns the axes.
 
-    With ``ax=None`` a whole figure (title, key, time label) is made with pyplot, so it
-    shows in a notebook; with ``ax`` only the particles are drawn on it.
+    ``parameters`` (a :class:`~flocking.Model` or a run's parameters) fill the title.
+    With ``ax=None`` a whole figure (title, key, time label) is made through pyplot, so
+    it shows in a notebook, in ``theme`` (default dark). With ``ax`` only the particles
+    are drawn, on those axes and nowhere else; ``theme`` defaults to the one that suits
+    the axes' background.
     """
     if ax is None:
-        scene = Scene.for_frame(frame, parameters, theme=theme, style=style, size=size, dpi=dpi,
-                                arrow_scale=arrow_scale, azim=azim, elev=elev, pyplot=True)
+        scene = Scene.for_frame(frame, as_parameters(parameters), theme=theme or "dark", style=style,
+                                size=size, dpi=dpi, arrow_scale=arrow_scale, azim=azim, elev=elev,
+                                pyplot=True)
         scene.draw(frame)
         return scene.ax
+    as_parameters(parameters)  # refused like the rest, even though only the title uses it
+    theme = theme_of_color(ax.get_facecolor()) if theme is None else get_theme(theme)
     FrameArtist(ax, frame, theme=theme, style=style, arrow_scale=arrow_scale, azim=azim, elev=elev)
     return ax
-
-
-def polar_order_figure(steps, phi, parameters=None, dim=2, n=0, box_lengths=(1, 1), theme="dark",
-                       size=7.0, dpi=120):
-    """The polar order against the step, on its own Agg figure."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    t = get_theme(theme)
-    fig = Figure(figsize=(size, size * 0.55), dpi=dpi)
-    FigureCanvasAgg(fig)
-    fig.set_facecolor(t.figure)
-    ax = fig.add_axes([0.1, 0.14, 0.86, 0.66])
-    ax.set_facecolor(t.background)
-    steps, phi = np.asarray(steps), np.asarray(phi)
-    ax.plot(steps, phi, color="#4cc9f0" if t.name == "dark" else "#1f5fa8", lw=1.2)
-    if len(phi) >= 4:
-        tail = phi[len(phi) // 2:]
-        ax.axhline(tail.mean(), color="#f4a261", lw=1, ls="--",
-                   label=f"mean of second half {tail.mean():.3f} \u00b1 {tail.std():.3f}")
-        ax.legend(loc="lower right", frameon=False, labelcolor=t.text, fontsize=9)
-    ax.set_ylim(0, 1.02)
-    if len(steps) > 1:
-        ax.set_xlim(steps[0], steps[-1])
-    ax.set_xlabel("step", color=t.text)
-    ax.set_ylabel("polar order \u03c6", color=t.text)
-    ax.tick_params(colors=t.text)
-    ax.grid(color=t.edge, alpha=0.3, lw=0.5)
-    for spine in ax.spines.values():
-        spine.set_color(t.edge)
-    title, subtitle = describe(parameters, dim, n, box_lengths)
-    fig.text(0.1, 0.93, title, color=t.text, fontsize=11.5, fontweight="bold", va="bottom")
-    fig.text(0.1, 0.86, subtitle, color=t.text, fontsize=9.5, va="bottom", alpha=0.85)
-    return fig

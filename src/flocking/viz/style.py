@@ -22,7 +22,6 @@ flocking.model.ParameterError: output: must end in .png, .svg or .pdf (got 'run.
 from __future__ import annotations
 
 import os
-import textwrap
 
 import numpy as np
 
@@ -67,6 +66,7 @@ LABELS = {
     "boxes": r"occupied boxes $N(\ell)$",
     "cluster_size": "cluster size $s$",
     "x": "$x$",
+    "y": "$y$",
     "profile": r"density $\rho(x)$",
 }
 
@@ -90,24 +90,60 @@ def check_format(path: str | os.PathLike) -> str:
     return ext
 
 
-def figure(size="column", theme="dark", nrows: int = 1, ncols: int = 1, **subplots):
-    """A new ``(fig, axes)`` in the house style; ``size`` is a name of :data:`SIZES` or
-    ``(width, height)`` in inches. Layout is constrained, so labels are never clipped."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+def resolve_size(size) -> tuple[float, float | None, float]:
+    """``(width, height, font size)`` of a figure size: a name of :data:`SIZES`, a width
+    in inches (height ``None``: the caller's choice) or ``(width, height)``.
 
-    t = get_theme(theme)
+    >>> resolve_size("slide"), resolve_size(5.2)[:2]
+    ((8.0, 4.5, 13.0), (5.2, None))
+    """
     if isinstance(size, str):
         if size not in SIZES:
-            raise ParameterError(f"size: must be one of {', '.join(SIZES)} or (width, height) (got {size!r})")
-        fontsize, size = FONT_SIZES[size], SIZES[size]
+            raise ParameterError(f"size: must be one of {', '.join(SIZES)} or a width in inches (got {size!r})")
+        return (*SIZES[size], FONT_SIZES[size])
+    if np.ndim(size) == 0:
+        width, height = size, None
+    elif np.shape(size) == (2,):
+        width, height = size
     else:
-        fontsize = float(np.interp(size[0], [3.4, 7.0, 8.0], [8.0, 9.0, 13.0]))
-    fig = Figure(figsize=size, layout="constrained")
-    FigureCanvasAgg(fig)
+        raise ParameterError(f"size: must be one of {', '.join(SIZES)} or a width in inches (got {size!r})")
+    for value in (width, height):
+        if value is not None and not (isinstance(value, (int, float, np.number)) and 0.5 <= value <= 100):
+            raise ParameterError(f"size: must be in [0.5, 100] inches (got {size!r})")
+    width = float(width)
+    fontsize = float(np.interp(width, [3.4, 7.0, 8.0], [8.0, 9.0, 13.0]))
+    return width, None if height is None else float(height), fontsize
+
+
+def new_figure(width: float, height: float, theme="dark", fontsize: float = 10.0, dpi: float | None = None,
+               pyplot: bool = False, layout: str | None = "constrained"):
+    """An empty figure in the house style: on its own Agg canvas, or through pyplot (so a
+    notebook shows it) when ``pyplot``; :func:`title` and friends read its theme."""
+    t = get_theme(theme)
+    if pyplot:
+        import matplotlib.pyplot as plt
+
+        fig = plt.figure(figsize=(width, height), dpi=dpi, layout=layout)
+    else:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(width, height), dpi=dpi, layout=layout)
+        FigureCanvasAgg(fig)
     fig.set_facecolor(t.figure)
     fig._flocking_theme = t.name  # read by the helpers below
     fig._flocking_fontsize = fontsize
+    return fig
+
+
+def figure(size="column", theme="dark", nrows: int = 1, ncols: int = 1, **subplots):
+    """A new ``(fig, axes)`` in the house style; ``size`` is a name of :data:`SIZES` or
+    ``(width, height)`` in inches. Layout is constrained, so labels are never clipped."""
+    t = get_theme(theme)
+    width, height, fontsize = resolve_size(size)
+    if height is None:
+        raise ParameterError(f"size: must be one of {', '.join(SIZES)} or (width, height) (got {size!r})")
+    fig = new_figure(width, height, t, fontsize)
     axes = fig.subplots(nrows, ncols, squeeze=True, **subplots)
     for ax in np.atleast_1d(axes).ravel():
         style_axes(ax, t)
@@ -149,21 +185,53 @@ def legend(ax, theme="dark", **options):
     return ax.legend(labelcolor=t.text, **options)
 
 
-def wrap_text(text: str, fig, fontsize: float) -> str:
-    """``text`` broken at ``" · "`` or spaces into lines that fit the figure's width."""
-    width_pt = fig.get_figwidth() * 72
-    chars = max(20, int(width_pt / (0.55 * fontsize)))  # average glyph is ~0.55 em wide
-    parts = text.split(" \u00b7 ")
-    lines, line = [], ""
-    for part in parts:
-        candidate = part if not line else f"{line} \u00b7 {part}"
-        if len(candidate) <= chars or not line:
-            line = candidate
-        else:
-            lines.append(line)
-            line = part
-    lines.append(line)
-    return "\n".join(textwrap.fill(x, chars) if len(x) > chars else x for x in lines)
+def visible_length(text: str) -> int:
+    """Characters ``text`` shows once mathtext is typeset (``$\\eta$`` is one).
+
+    >>> visible_length(r"$\\eta$ = 1 \u00b7 $v_0$ = 0.5")
+    16
+    """
+    import re
+
+    def math(match):
+        body = re.sub(r"\\[A-Za-z]+", "x", match.group(1))
+        return re.sub(r"[{}_^]|\\.", "", body)
+
+    return len(re.sub(r"\$(.*?)\$", math, text))
+
+
+def wrap_text(text: str, fig, fontsize: float, weight: str = "normal") -> str:
+    """``text`` broken at ``" \u00b7 "`` (or, within a part too long for a line, at spaces)
+    into lines that fit the figure's width, measured as the text will be drawn."""
+    from matplotlib.font_manager import FontProperties
+
+    limit = 0.96 * fig.get_figwidth() * 72  # points
+    get_renderer = getattr(fig.canvas, "get_renderer", None)
+    if get_renderer is None:  # a canvas that cannot measure text: estimate
+        def width(line):
+            return 0.55 * fontsize * visible_length(line)
+    else:
+        renderer, prop = get_renderer(), FontProperties(size=fontsize, weight=weight)
+
+        def width(line):
+            w, _, _ = renderer.get_text_width_height_descent(line, prop, ismath=line.count("$") >= 2)
+            return w * 72 / renderer.dpi
+
+    def fill(parts, sep):
+        lines, line = [], ""
+        for part in parts:
+            candidate = part if not line else f"{line}{sep}{part}"
+            if not line or width(candidate) <= limit:
+                line = candidate
+            else:
+                lines.append(line)
+                line = part
+        return lines + [line]
+
+    lines = []
+    for line in fill(text.split(" \u00b7 "), " \u00b7 "):
+        lines.extend(fill(line.split(" "), " ") if width(line) > limit else [line])
+    return "\n".join(lines)
 
 
 def title(fig, main: str, details: str = "") -> None:
@@ -172,14 +240,32 @@ def title(fig, main: str, details: str = "") -> None:
     and placed by the constrained layout, so neither is ever clipped."""
     t = get_theme(getattr(fig, "_flocking_theme", "dark"))
     size = 1.1 * fontsize(fig)
-    fig.suptitle(wrap_text(main, fig, size), color=t.text, fontsize=size, fontweight="bold")
+    fig.suptitle(wrap_text(main, fig, size, "bold"), color=t.text, fontsize=size, fontweight="bold")
     if details:
         fig.supxlabel(wrap_text(details, fig, 0.8 * size), color=t.text, fontsize=0.8 * size, alpha=0.85)
 
 
+def check_dpi(dpi) -> float | None:
+    """``dpi`` as a float in [10, 1000] (``None``: the default, :data:`DPI`)."""
+    if dpi is None:
+        return None
+    try:
+        value = float(dpi)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not 10 <= value <= 1000:  # NaN fails too
+        raise ParameterError(f"dpi: must be in [10, 1000] (got {dpi!r})")
+    return value
+
+
 def save(fig, path: str | os.PathLike, dpi: float | None = None) -> str:
-    """Write ``fig`` to ``path`` in the format its extension names; returns the path."""
-    check_format(path)
+    """Write ``fig`` to ``path`` in the format its extension names, atomically (a file
+    that was there stays whole until the new one replaces it); returns the path."""
+    from ..files import replace_atomically
+
+    fmt = check_format(path)
     path = os.fspath(path)
-    fig.savefig(path, dpi=dpi or DPI, facecolor=fig.get_facecolor())
+    dpi = check_dpi(dpi) or DPI
+    with replace_atomically(path, "wb") as f:
+        fig.savefig(f, format=fmt, dpi=dpi, facecolor=fig.get_facecolor())
     return path
