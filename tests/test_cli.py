@@ -276,3 +276,55 @@ def test_interrupted_run_leaves_valid_files(tmp_path):
     rows = np.loadtxt(out / "observables.csv", delimiter=",", skiprows=1)
     assert rows[-1, 0] == steps[-1]  # the stop step's frame is written
     assert np.array_equal(rows[:, 0], np.arange(len(rows)))
+
+
+def test_compilation_is_announced_before_it_starts(monkeypatch):
+    """warm_up says so when numba starts compiling (its cache-miss event), not after."""
+    import numba
+
+    from flocking.cli import run as run_module
+    from flocking.config import RunConfig
+
+    events = []
+
+    @numba.njit  # not cached: compiled on its first call in this process
+    def fresh(x):
+        return x + 1
+
+    class Compiling:
+        def __init__(self, *args, **kwargs):
+            self.backend = self
+
+        def run(self, steps):
+            events.append("compile starts")
+            fresh(1)
+            events.append("compiled")
+
+        def frame_arrays(self):
+            return None
+
+    monkeypatch.setattr("flocking.simulation.Simulation", Compiling)
+    took = run_module.warm_up(RunConfig.from_dict({"n": 10, "box": 5}), announce=lambda: events.append("announced"))
+    assert events == ["compile starts", "announced", "compiled"] and took > 0
+
+
+def test_cached_kernels_are_not_announced():
+    from flocking.cli import run as run_module
+    from flocking.config import RunConfig
+
+    cfg = RunConfig.from_dict({"n": 10, "box": 5})
+    run_module.warm_up(cfg)  # compiles or loads
+    said = []
+    assert run_module.warm_up(cfg, announce=lambda: said.append(1)) is None and said == []
+
+
+@pytest.mark.slow
+def test_first_run_of_a_kind_announces_compilation_with_an_empty_cache(tmp_path):
+    env = dict(os.environ, PYTHONPATH=SRC, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    proc = subprocess.run([sys.executable, "-m", "flocking", "run", "--n", "100", "--steps", "2", "--no-plots",
+                           "--out", str(tmp_path / "o")], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    announce = next(i for i, line in enumerate(lines) if "compiling the kernels" in line)
+    done = next(i for i, line in enumerate(lines) if "compiled in" in line)
+    assert announce < done
