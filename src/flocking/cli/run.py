@@ -90,7 +90,7 @@ def written_by_flocking(name: str) -> bool:
 
     names = set(RUN_FILES) | {stem + ext for stem, _ in OUTPUTS.values() for ext in (".csv", ".png")}
     for name_ in names:
-        base, ext = os.path.splitext(name_)
+        ext = os.path.splitext(name_)[1]
         if re.fullmatch(re.escape(name_) + r"(\.\d+)?\.tmp", name) or name == f".{name_}.part{ext}":
             return True
     return name in names
