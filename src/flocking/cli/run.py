@@ -295,9 +295,9 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
 
 
 #: How long numba takes to compile the kernels of a new kind of run (2D or 3D, metric or
-#: topological, angular or vectorial noise, delay or not), measured with ``flocking run``
-#: on the project's 2-core machine.
-COMPILE_TIME = "about 30 s to a minute on 2 cores"
+#: topological, angular or vectorial noise, delay or not): 30 to 50 s of CPU time measured
+#: with ``flocking run`` on the project's 2-core machine, minutes when it was busy.
+COMPILE_TIME = "typically 30 to 50 s, longer on a busy machine"
 
 
 def warm_up(cfg: RunConfig, announce=None) -> float | None:
