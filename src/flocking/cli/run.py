@@ -38,34 +38,44 @@ MODEL_OPTIONS = [
 ]
 
 
-def shown_default(name: str) -> str:
+def shown_default(name: str, defaults: dict | None = None) -> str:
     """What ``--help`` shows as the default of an option: the value :class:`Model` or
     :class:`RunConfig` takes when the option is not given (options default to ``None``
-    so that a config file can set them).
+    so that a config file can set them), or the command's own ``defaults``.
 
     >>> shown_default("--noise-type"), shown_default("--radius"), shown_default("--every")
     ('angular', '1', '10')
-    >>> shown_default("--box")
-    '32 when needed'
+    >>> shown_default("--box"), shown_default("--box", {"n": 4000, "density": 2.0})
+    ('32 when needed', 'from n and density')
     """
     key = name.lstrip("-").replace("-", "_")
-    if key in ("n", "density", "box"):
-        derived = {"n": "density x volume", "density": f"{DEFAULT_DENSITY:g} when needed",
-                   "box": f"{DEFAULT_BOX:g} when needed"}
-        return derived[key]
-    value = RUN_DEFAULTS[key] if key in RUN_DEFAULTS else inspect.signature(Model).parameters[key].default
+    defaults = defaults or {}
+    if key in defaults:
+        value = defaults[key]
+    elif key in ("n", "density", "box"):
+        if key == "box" and {"n", "density"} <= defaults.keys():
+            return "from n and density"
+        return {"n": "density x volume", "density": f"{DEFAULT_DENSITY:g} when needed",
+                "box": f"{DEFAULT_BOX:g} when needed"}[key]
+    else:
+        value = RUN_DEFAULTS[key] if key in RUN_DEFAULTS else inspect.signature(Model).parameters[key].default
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
-def with_default(text: str, name: str) -> str:
+def with_default(text: str, name: str, defaults: dict | None = None) -> str:
     """An option's help followed by its default, as click shows it."""
-    return f"{text}  [default: {shown_default(name)}]"
+    return f"{text}  [default: {shown_default(name, defaults)}]"
 
 
-def model_options(func):
-    for name, kind, text in reversed(MODEL_OPTIONS):
-        func = click.option(name, type=kind, default=None, help=with_default(text, name))(func)
-    return func
+def model_options(func=None, *, defaults: dict | None = None):
+    """Decorator: every model parameter as an option. ``@model_options`` shows the model's
+    defaults; ``@model_options(defaults={...})`` those a command uses instead."""
+    def decorate(func):
+        for name, kind, text in reversed(MODEL_OPTIONS):
+            func = click.option(name, type=kind, default=None, help=with_default(text, name, defaults))(func)
+        return func
+
+    return decorate if func is None else decorate(func)
 
 
 #: What a run folder holds that flocking writes: the run's files, the pictures and movie
