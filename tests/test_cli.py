@@ -237,6 +237,24 @@ def test_help_shows_every_default():
         assert " ".join(param.help.split()) in text, param.name
         checked.add(param.name)
     assert {"neighbours", "noise_type", "update", "speeds", "noise_scale", "precision", "backend"} <= checked
+    # flocking play shares the model options and shows the sizes a new tab starts with
+    play = " ".join(CliRunner().invoke(main, ["play", "--help"], terminal_width=400, max_content_width=400)
+                    .output.split())
+    assert "density, box). [default: 4000]" in play and "[default: from n and density]" in play
+
+
+def test_warm_up_model_takes_the_kernels_of_the_run():
+    """The tiny model compiled before a run has three cells a side exactly when the run does."""
+    from flocking.backends.cpu import cell_grid
+    from flocking.cli.run import tiny_model
+
+    for model in (flocking.Model(n=100_000), flocking.Model(n=100_000, radius=2.5), flocking.Model(dim=3, radius=3),
+                  flocking.Model(box=7, radius=2.5), flocking.Model(n=10**6, density=0.05),
+                  flocking.Model(dim=3, box=[40, 40, 5], radius=2)):
+        tiny = tiny_model(model)
+        assert tiny.n <= max(64, round(model.density * (3.5 * model.radius) ** model.dim) + 1)
+        assert tiny.density == pytest.approx(model.density, rel=0.05)
+        assert (cell_grid(tiny) >= 3).all() == (cell_grid(model) >= 3).all(), model
 
 
 def test_analyse_is_accepted_and_listed_once(tmp_path):
@@ -244,8 +262,8 @@ def test_analyse_is_accepted_and_listed_once(tmp_path):
     result = CliRunner().invoke(main, ["analyse", str(tmp_path / "o"), "--only", "polar", "-q", "--no-plots"])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "o" / "analysis.json").exists()
-    listing = CliRunner().invoke(main, ["--help"]).output
-    assert listing.count("analyze") == 1 and "analyse " not in listing
+    commands = CliRunner().invoke(main, ["--help"]).output.split("Commands:")[1].split()
+    assert commands.count("analyze") == 1 and "analyse" not in commands
     assert "No such command" in CliRunner().invoke(main, ["analyzer"]).output
 
 

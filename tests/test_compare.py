@@ -83,6 +83,15 @@ def test_other_runs_differ_in_everything(runs):
     assert "observables: 31 rows differ" in result.output
 
 
+def test_runs_recorded_at_other_steps_differ(runs, tmp_path):
+    args = ["run", "--n", "150", "--box", "7", "--steps", "30", "--every", "7", "--no-plots", "-q"]
+    assert CliRunner().invoke(main, [*args, "--out", str(tmp_path / "every7")]).exit_code == 0
+    found = differences(str(runs / "a"), str(tmp_path / "every7"))
+    assert "trajectory: 4 and 6 frames" in found
+    assert any(line.startswith("trajectory: 3 frames differ; the first is frame 1 (step 10): configuration.step: "
+                               "1 of 1 differ") for line in found)
+
+
 @pytest.mark.parametrize("make, message", [
     (lambda root: root / "nowhere", "is not a run folder or a trajectory"),
     (lambda root: root / "empty", "is not a run folder or a trajectory"),

@@ -44,12 +44,12 @@ def trajectory_of(path: str) -> str:
 
 
 def _array_difference(name: str, a, b) -> str | None:
-    a, b = np.asarray(a), np.asarray(b)
+    a, b = np.atleast_1d(a), np.atleast_1d(b)
     if a.shape != b.shape:
         return f"{name}: shapes {a.shape} and {b.shape}"
     if a.dtype != b.dtype:
         return f"{name}: types {a.dtype} and {b.dtype}"
-    same = (a == b) | ((a != a) & (b != b))  # NaN equals NaN here: the same bits were stored
+    same = (a == b) | ((a != a) & (b != b))  # two NaNs count as equal
     if same.all():
         return None
     rows = same.reshape(len(same), -1).all(axis=1) if same.ndim > 1 else same

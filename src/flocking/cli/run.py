@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import math
 import os
 import re
 import signal
@@ -310,6 +311,24 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
 COMPILE_TIME = "typically 30 to 50 s, longer on a busy machine"
 
 
+def tiny_model(model: Model) -> Model:
+    """A copy of ``model`` with a few dozen particles at the same density that takes the same
+    kernels: where ``model``'s box sides are at least 3.5 R, so are the copy's (the CPU
+    backend's fast metric path needs three cells of side R along every axis).
+
+    >>> tiny_model(Model(n=100_000, radius=2.0)).box, tiny_model(Model(n=100_000)).n
+    ((7.0, 7.0), 64)
+    >>> tiny_model(Model(n=10)) == Model(n=10)
+    True
+    """
+    side = (64 / model.density) ** (1.0 / model.dim)
+    if model.neighbours == "metric":
+        side = max(side, 3.5 * model.radius)
+    box = [min(length, side) for length in model.box]
+    n = max(1, round(model.density * math.prod(box)))
+    return model if n >= model.n else model.replace(n=n, box=box)
+
+
 def warm_up(cfg: RunConfig, announce=None) -> float | None:
     """Run two steps of a tiny copy of the model and take a frame, so that numba compiles (or
     loads from its cache) the kernels before the timed run. ``announce()`` is called when a compilation
@@ -333,7 +352,7 @@ def warm_up(cfg: RunConfig, announce=None) -> float | None:
             pass
 
     start = time.perf_counter()
-    tiny = cfg.model.replace(n=min(cfg.model.n, 64), density=cfg.model.density)
+    tiny = tiny_model(cfg.model)
     with event.install_listener("numba:compile", FirstCompile()) as listener:
         sim = Simulation(tiny, State.random(tiny), backend=cfg.backend, **cfg.backend_options())
         sim.run(2)
