@@ -52,14 +52,17 @@ def test_default_like_run_writes_a_complete_folder(tmp_path):
     assert traj[-1].polar_order == pytest.approx(phi[-1], abs=1e-6)
 
 
-def test_config_repeats_the_run_bit_for_bit(tmp_path):
+def test_config_repeats_the_run_exactly(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     run("--dim", 3, "--n", 200, "--box", "4,5,3", "--neighbours", "topological", "--k", 5, "--noise-type",
         "vectorial", "--noise", 0.3, "--alignment", 0.5, "--delay", 2, "--speeds", "uniform", "--update",
         "forward", "--dt", 0.5, "--seed", 11, "--steps", 30, "--every", 7, "--out", a, "-q")
     run("--config", a / "config.toml", "--out", b, "-q")
-    for name in ("trajectory.gsd", "observables.csv", "config.toml"):
+    for name in ("observables.csv", "config.toml"):
         assert (a / name).read_bytes() == (b / name).read_bytes()
+    # the trajectories hold the same data (their bytes may differ: gsd lays frames out as flushed)
+    result = CliRunner().invoke(main, ["compare", str(a), str(b)])
+    assert result.exit_code == 0 and "identical data" in result.output
 
 
 def test_command_line_overrides_the_config_file(tmp_path):
@@ -166,7 +169,102 @@ def test_non_empty_output_folder_needs_force(tmp_path):
     assert result.exit_code == 2 and "not empty; use --force" in result.output
     assert sorted(os.listdir(out)) == ["keep.txt"]
     run("--n", 20, "--steps", 2, "--out", out, "--force", "-q")
-    assert (out / "trajectory.gsd").exists()
+    assert (out / "trajectory.gsd").exists() and (out / "keep.txt").read_text() == "precious"
+
+
+RUN_OUTPUTS = {"config.toml", "observables.csv", "trajectory.gsd", "checkpoint.npz"}
+
+
+def test_force_replaces_an_earlier_run_entirely(tmp_path):
+    """Nothing of the earlier run (pictures, movie, analysis) stays beside the new one."""
+    out = tmp_path / "o"
+    run("--n", 300, "--steps", 20, "--every", 10, "--out", out, "-q")
+    assert CliRunner().invoke(main, ["analyze", str(out), "-q", "--no-plots", "--only", "polar,clusters"]).exit_code == 0
+    (out / "movie.mp4").write_bytes(b"an old movie")
+    (out / "trajectory.gsd.4242.tmp").write_bytes(b"left by a killed writer")
+    before = set(os.listdir(out))
+    assert {"analysis.json", "cluster_sizes.csv", "snapshot.png"} <= before
+    result = run("--n", 50, "--steps", 3, "--out", out, "--force", "--no-plots")
+    assert set(os.listdir(out)) == RUN_OUTPUTS
+    assert f"removed {len(before)} files of an earlier run" in result.output
+    assert flocking.open(out / "trajectory.gsd").model.n == 50
+
+
+def test_force_keeps_what_flocking_did_not_write(tmp_path):
+    out = tmp_path / "o"
+    run("--n", 100, "--steps", 5, "--out", out, "-q")
+    (out / "notes.txt").write_text("my notes")
+    (out / "snapshot-for-talk.png").write_bytes(b"mine")
+    (out / "analysis").mkdir()
+    (out / "analysis" / "analysis.json").write_text("{}")
+    result = run("--n", 60, "--steps", 3, "--out", out, "--force", "--no-plots")
+    assert set(os.listdir(out)) == RUN_OUTPUTS | {"notes.txt", "snapshot-for-talk.png", "analysis"}
+    assert (out / "notes.txt").read_text() == "my notes" and (out / "analysis" / "analysis.json").exists()
+    assert "kept analysis, notes.txt, snapshot-for-talk.png" in result.output
+
+
+def test_force_refuses_to_clear_the_trajectory_it_starts_from(tmp_path):
+    out = tmp_path / "o"
+    run("--n", 100, "--steps", 5, "--out", out, "-q")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    result = run("--init", out / "trajectory.gsd", "--steps", 3, "--out", out, "--force", check=False)
+    assert result.exit_code == 2 and "--init:" in result.output and "--force would clear" in result.output
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # a bad parameter with --force is refused before anything is removed, too
+    result = run("--n", 100, "--noise", 9, "--out", out, "--force", check=False)
+    assert result.exit_code == 2 and {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_help_shows_every_default():
+    """Every option that takes a value shows its default, and it is the one a run uses."""
+    from flocking.cli.run import run as run_command
+    from flocking.config import RunConfig
+
+    help_text = CliRunner().invoke(main, ["run", "--help"], terminal_width=400, max_content_width=400).output
+    text = " ".join(help_text.split())
+    used = RunConfig.from_dict({}).to_dict()  # what a run without options resolves to
+    derived = {"n": "density x volume", "density": "2 when needed", "box": "32 when needed",
+               "out": "runs/run-NNNN, a new one", "plots": "--plots; with --resume, as the run began",
+               "movie": "--no-movie; with --resume, as the run began", "noise_scale": "radians"}
+    assert used["n"] == 2048 and used["box"] == [32.0, 32.0]  # density 2 x 32 x 32
+    checked = set()
+    for param in run_command.params:
+        if param.name in ("config_file", "resume_dir", "force", "quiet", "show", "help"):
+            continue
+        value = used.get(param.name)
+        shown = derived.get(param.name, f"{value:g}" if isinstance(value, float) else str(value))
+        assert param.help.endswith(f"[default: {shown}]"), param.name
+        assert " ".join(param.help.split()) in text, param.name
+        checked.add(param.name)
+    assert {"neighbours", "noise_type", "update", "speeds", "noise_scale", "precision", "backend"} <= checked
+    # flocking play shares the model options and shows the sizes a new tab starts with
+    play = " ".join(CliRunner().invoke(main, ["play", "--help"], terminal_width=400, max_content_width=400)
+                    .output.split())
+    assert "density, box). [default: 4000]" in play and "[default: from n and density]" in play
+
+
+def test_warm_up_model_takes_the_kernels_of_the_run():
+    """The tiny model compiled before a run has three cells a side exactly when the run does."""
+    from flocking.backends.cpu import cell_grid
+    from flocking.cli.run import tiny_model
+
+    for model in (flocking.Model(n=100_000), flocking.Model(n=100_000, radius=2.5), flocking.Model(dim=3, radius=3),
+                  flocking.Model(box=7, radius=2.5), flocking.Model(n=10**6, density=0.05),
+                  flocking.Model(dim=3, box=[40, 40, 5], radius=2)):
+        tiny = tiny_model(model)
+        assert tiny.n <= max(64, round(model.density * (3.5 * model.radius) ** model.dim) + 1)
+        assert tiny.density == pytest.approx(model.density, rel=0.05)
+        assert (cell_grid(tiny) >= 3).all() == (cell_grid(model) >= 3).all(), model
+
+
+def test_analyse_is_accepted_and_listed_once(tmp_path):
+    run("--n", 100, "--steps", 5, "--out", tmp_path / "o", "-q", "--no-plots")
+    result = CliRunner().invoke(main, ["analyse", str(tmp_path / "o"), "--only", "polar", "-q", "--no-plots"])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "o" / "analysis.json").exists()
+    commands = CliRunner().invoke(main, ["--help"]).output.split("Commands:")[1].split()
+    assert commands.count("analyze") == 1 and "analyse" not in commands
+    assert "No such command" in CliRunner().invoke(main, ["analyzer"]).output
 
 
 def test_default_output_folders_never_overwrite(tmp_path, monkeypatch):
@@ -196,3 +294,55 @@ def test_interrupted_run_leaves_valid_files(tmp_path):
     rows = np.loadtxt(out / "observables.csv", delimiter=",", skiprows=1)
     assert rows[-1, 0] == steps[-1]  # the stop step's frame is written
     assert np.array_equal(rows[:, 0], np.arange(len(rows)))
+
+
+def test_compilation_is_announced_before_it_starts(monkeypatch):
+    """warm_up says so when numba starts compiling (its cache-miss event), not after."""
+    import numba
+
+    from flocking.cli import run as run_module
+    from flocking.config import RunConfig
+
+    events = []
+
+    @numba.njit  # not cached: compiled on its first call in this process
+    def fresh(x):
+        return x + 1
+
+    class Compiling:
+        def __init__(self, *args, **kwargs):
+            self.backend = self
+
+        def run(self, steps):
+            events.append("compile starts")
+            fresh(1)
+            events.append("compiled")
+
+        def frame_arrays(self):
+            return None
+
+    monkeypatch.setattr("flocking.simulation.Simulation", Compiling)
+    took = run_module.warm_up(RunConfig.from_dict({"n": 10, "box": 5}), announce=lambda: events.append("announced"))
+    assert events == ["compile starts", "announced", "compiled"] and took > 0
+
+
+def test_cached_kernels_are_not_announced():
+    from flocking.cli import run as run_module
+    from flocking.config import RunConfig
+
+    cfg = RunConfig.from_dict({"n": 10, "box": 5})
+    run_module.warm_up(cfg)  # compiles or loads
+    said = []
+    assert run_module.warm_up(cfg, announce=lambda: said.append(1)) is None and said == []
+
+
+@pytest.mark.slow
+def test_first_run_of_a_kind_announces_compilation_with_an_empty_cache(tmp_path):
+    env = dict(os.environ, PYTHONPATH=SRC, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    proc = subprocess.run([sys.executable, "-m", "flocking", "run", "--n", "100", "--steps", "2", "--no-plots",
+                           "--out", str(tmp_path / "o")], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    announce = next(i for i, line in enumerate(lines) if "compiling the kernels" in line)
+    done = next(i for i, line in enumerate(lines) if "compiled in" in line)
+    assert announce < done

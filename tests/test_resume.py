@@ -13,6 +13,7 @@ from click.testing import CliRunner
 
 import flocking
 from flocking.cli import main
+from flocking.cli.compare import differences
 
 SRC = os.path.dirname(os.path.dirname(flocking.__file__))
 
@@ -35,6 +36,7 @@ def assert_same_run(a, b):
         assert np.array_equal(x[1], y[1]) and np.array_equal(x[2], y[2])
     with open(os.path.join(a, "observables.csv"), "rb") as fa_, open(os.path.join(b, "observables.csv"), "rb") as fb_:
         assert fa_.read() == fb_.read()
+    assert differences(a, b) == []  # what `flocking compare` says about them
 
 
 CASES = {
@@ -61,6 +63,24 @@ def test_resume_of_a_complete_run_changes_nothing(tmp_path):
     before = (tmp_path / "a" / "observables.csv").read_bytes()
     cli("--resume", tmp_path / "a", "-q")
     assert (tmp_path / "a" / "observables.csv").read_bytes() == before
+
+
+def test_resume_keeps_the_choice_of_pictures_unless_told(tmp_path):
+    out = tmp_path / "a"
+    cli("--n", 100, "--steps", 10, "--no-plots", "--out", out, "-q")
+    assert not (out / "snapshot.png").exists()
+    cli("--resume", out, "--steps", 20, "-q")
+    assert not (out / "snapshot.png").exists() and not (out / "polar_order.png").exists()
+    cli("--resume", out, "--steps", 30, "--plots", "-q")  # told otherwise: pictures, and kept from then on
+    assert (out / "snapshot.png").exists() and (out / "polar_order.png").exists()
+    os.remove(out / "snapshot.png")
+    cli("--resume", out, "--steps", 40, "-q")
+    assert (out / "snapshot.png").exists()
+    # a run made with the defaults draws its pictures again when resumed, and no movie
+    cli("--n", 100, "--steps", 10, "--out", tmp_path / "b", "-q")
+    os.remove(tmp_path / "b" / "snapshot.png")
+    cli("--resume", tmp_path / "b", "--steps", 20, "-q")
+    assert (tmp_path / "b" / "snapshot.png").exists() and not (tmp_path / "b" / "movie.mp4").exists()
 
 
 def test_resume_errors(tmp_path):

@@ -14,9 +14,20 @@ import click
 from ..model import ParameterError
 from ..simulation import NonFiniteError
 
+#: other spellings of a subcommand -> its name (accepted, not listed by ``--help``)
+ALIASES = {"analyse": "analyze"}
+
 
 class Main(click.Group):
-    """A click group that reports our errors in one line."""
+    """A click group that reports our errors in one line, and accepts the spellings in
+    :data:`ALIASES` without listing them twice in ``--help``."""
+
+    def get_command(self, ctx, cmd_name):
+        return super().get_command(ctx, ALIASES.get(cmd_name, cmd_name))
+
+    def resolve_command(self, ctx, args):
+        name, command, rest = super().resolve_command(ctx, args)
+        return (command.name if command else name), command, rest
 
     def invoke(self, ctx):
         try:
@@ -64,11 +75,12 @@ def _register() -> None:
     from .analyze import analyze
     from .animate import animate
     from .bench import bench
+    from .compare import compare
     from .play import play
     from .run import run
     from .sweep import plot_sweep, sweep
 
-    for command in (run, animate, analyze, sweep, plot_sweep, play, bench):
+    for command in (run, compare, animate, analyze, sweep, plot_sweep, play, bench):
         main.add_command(command)
 
 

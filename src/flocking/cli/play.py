@@ -17,7 +17,7 @@ EXTRA = "flocking play needs its web extra: pip install 'flocking[play]'"
 
 
 @click.command()
-@model_options
+@model_options(defaults=PLAY_DEFAULTS)
 @click.option("--host", default="127.0.0.1", show_default=True,
               help="Address to listen on; anything but 127.0.0.1 lets other machines connect.")
 @click.option("--port", type=click.IntRange(0, 65535), default=8765, show_default=True,

@@ -2,64 +2,152 @@
 
 from __future__ import annotations
 
+import inspect
+import math
 import os
+import re
 import signal
 import sys
 import time
 
 import click
 
-from ..config import RunConfig
+from ..config import RUN_DEFAULTS, RunConfig
 from ..files import write_text
-from ..model import CHOICES, ParameterError
+from ..model import CHOICES, DEFAULT_BOX, DEFAULT_DENSITY, Model, ParameterError
 
-#: option name -> help; every model parameter of MODEL.md, same words as the docs
+#: option name -> help; every model parameter, same words as docs/model.md (defaults: :func:`shown_default`)
 MODEL_OPTIONS = [
-    ("--dim", click.INT, "Dimension, 2 or 3. [default: 2]"),
+    ("--dim", click.INT, "Dimension, 2 or 3."),
     ("--n", click.INT, "Number of particles (give at most two of n, density, box)."),
-    ("--density", click.FLOAT, "Number density N / volume. [default: 2 when needed]"),
-    ("--box", str, "Box side, or one per axis such as 4,5. [default: 32 when needed]"),
-    ("--speed", click.FLOAT, "Speed v0 (> 0). [default: 0.5]"),
-    ("--speeds", click.Choice(CHOICES["speeds"]), "All v0, or each uniform in (0, v0]. [default: constant]"),
+    ("--density", click.FLOAT, "Number density N / volume."),
+    ("--box", str, "Box side, or one per axis such as 4,5."),
+    ("--speed", click.FLOAT, "Speed v0 (> 0)."),
+    ("--speeds", click.Choice(CHOICES["speeds"]), "All v0, or each uniform in (0, v0]."),
     ("--neighbours", click.Choice(CHOICES["neighbours"]), "Metric (radius) or topological (k nearest)."),
-    ("--radius", click.FLOAT, "Interaction radius R, metric neighbours. [default: 1]"),
-    ("--k", click.INT, "Number of nearest neighbours, topological. [default: 7]"),
-    ("--noise", click.FLOAT, "Noise amplitude eta: [0, 2 pi] for angular noise. [default: 1]"),
+    ("--radius", click.FLOAT, "Interaction radius R, metric neighbours."),
+    ("--k", click.INT, "Number of nearest neighbours, topological."),
+    ("--noise", click.FLOAT, "Noise amplitude eta: [0, 2 pi] for angular noise."),
     ("--noise-scale", click.Choice(CHOICES["noise_scale"]),
-     "'unit': --noise is eta' in [0, 1] (eta = 2 pi eta' for angular noise). [default: radians]"),
+     "'unit': --noise is eta' in [0, 1] (eta = 2 pi eta' for angular noise)."),
     ("--noise-type", click.Choice(CHOICES["noise_type"]), "Angular (Vicsek) or vectorial (Gregoire-Chate)."),
-    ("--alignment", click.FLOAT, "Fraction epsilon in [0, 1] of the turn toward the neighbours. [default: 1]"),
-    ("--delay", click.INT, "Neighbours are seen this many steps late (>= 0). [default: 0]"),
-    ("--dt", click.FLOAT, "Time step (> 0). [default: 1]"),
+    ("--alignment", click.FLOAT, "Fraction epsilon in [0, 1] of the turn toward the neighbours."),
+    ("--delay", click.INT, "Neighbours are seen this many steps late (>= 0)."),
+    ("--dt", click.FLOAT, "Time step (> 0)."),
     ("--update", click.Choice(CHOICES["update"]), "Move along the new (backward) or old (forward) heading."),
-    ("--seed", click.INT, "The one integer that fixes every random number. [default: 0]"),
+    ("--seed", click.INT, "The one integer that fixes every random number."),
     # the extensions (docs/model.md); obstacles, species and coupling come from --config
-    ("--boundary", str, "periodic or wall, for every axis or one per axis such as periodic,wall. "
-                        "[default: periodic]"),
-    ("--vision", click.FLOAT, "Half-angle of the cone in front inside which neighbours are seen, in (0, pi]. "
-                              "[default: pi, all around]"),
+    ("--boundary", str, "periodic or wall, for every axis or one per axis such as periodic,wall."),
+    ("--vision", click.FLOAT, "Half-angle of the cone in front inside which neighbours are seen, in (0, pi]."),
     ("--alignment-rule", click.Choice(CHOICES["alignment_rule"]),
-     "polar, or nematic: anti-parallel neighbours count reversed. [default: polar]"),
-    ("--chirality", click.FLOAT, "Turn omega (radians per unit time, counter-clockwise) every step, 2D only. "
-                                 "[default: 0]"),
-    ("--field", str, "Direction g of an external field such as 1,0 (any length). [default: none]"),
-    ("--field-strength", click.FLOAT, "Strength h >= 0 of the field: S += h n g. [default: 0]"),
+     "polar, or nematic: anti-parallel neighbours count reversed."),
+    ("--chirality", click.FLOAT, "Turn omega (radians per unit time, counter-clockwise) every step, 2D only."),
+    ("--field", str, "Direction g of an external field such as 1,0 (any length)."),
+    ("--field-strength", click.FLOAT, "Strength h >= 0 of the field: S += h n g."),
 ]
 
 
-def model_options(func):
-    for name, kind, text in reversed(MODEL_OPTIONS):
-        func = click.option(name, type=kind, default=None, help=text)(func)
-    return func
+#: Defaults shown in words rather than as the value.
+SHOWN = {"vision": "pi, all around", "field": "none"}
+
+
+def shown_default(name: str, defaults: dict | None = None) -> str:
+    """What ``--help`` shows as the default of an option: the value :class:`Model` or
+    :class:`RunConfig` takes when the option is not given (options default to ``None``
+    so that a config file can set them), or the command's own ``defaults``.
+
+    >>> shown_default("--noise-type"), shown_default("--radius"), shown_default("--every")
+    ('angular', '1', '10')
+    >>> shown_default("--box"), shown_default("--box", {"n": 4000, "density": 2.0})
+    ('32 when needed', 'from n and density')
+    """
+    key = name.lstrip("-").replace("-", "_")
+    defaults = defaults or {}
+    if key in SHOWN:
+        return SHOWN[key]
+    if key in defaults:
+        value = defaults[key]
+    elif key in ("n", "density", "box"):
+        if key == "box" and {"n", "density"} <= defaults.keys():
+            return "from n and density"
+        return {"n": "density x volume", "density": f"{DEFAULT_DENSITY:g} when needed",
+                "box": f"{DEFAULT_BOX:g} when needed"}[key]
+    else:
+        value = RUN_DEFAULTS[key] if key in RUN_DEFAULTS else inspect.signature(Model).parameters[key].default
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def with_default(text: str, name: str, defaults: dict | None = None) -> str:
+    """An option's help followed by its default, as click shows it."""
+    return f"{text}  [default: {shown_default(name, defaults)}]"
+
+
+def model_options(func=None, *, defaults: dict | None = None):
+    """Decorator: every model parameter as an option. ``@model_options`` shows the model's
+    defaults; ``@model_options(defaults={...})`` those a command uses instead."""
+    def decorate(func):
+        for name, kind, text in reversed(MODEL_OPTIONS):
+            func = click.option(name, type=kind, default=None, help=with_default(text, name, defaults))(func)
+        return func
+
+    return decorate if func is None else decorate(func)
+
+
+#: The formats pictures can be saved in (``--plot-format``).
+PICTURE_FORMATS = ("png", "svg", "pdf")
+
+#: What a run folder holds that flocking writes: the run's files, the pictures and movie
+#: of ``flocking run`` and ``flocking animate``, and ``flocking analyze``'s default outputs.
+#: ``--force`` removes these (and their temporaries) and nothing else.
+RUN_FILES = ("trajectory.gsd", "observables.csv", "config.toml", "checkpoint.npz", "movie.mp4", "analysis.json",
+             *(f"{stem}.{ext}" for stem in ("snapshot", "polar_order") for ext in PICTURE_FORMATS))
+
+#: Choices about what a run leaves besides its data, with their defaults; a resumed run
+#: keeps the choices its first part made unless the command line says otherwise.
+OUTPUT_CHOICES = {"plots": True, "movie": False}
+
+
+def written_by_flocking(name: str) -> bool:
+    """Whether a file called ``name`` in a run folder is one that flocking writes there
+    (or a temporary it leaves when killed while writing one).
+
+    >>> [written_by_flocking(x) for x in ("snapshot.png", "msd.csv", "config.toml.812.tmp", "notes.txt")]
+    [True, True, True, False]
+    """
+    from .analyze import OUTPUTS
+
+    names = set(RUN_FILES) | {stem + ext for stem, _ in OUTPUTS.values() for ext in (".csv", *(f".{e}" for e in PICTURE_FORMATS))}
+    for name_ in names:
+        ext = os.path.splitext(name_)[1]
+        if re.fullmatch(re.escape(name_) + r"(\.\d+)?\.tmp", name) or name == f".{name_}.part{ext}":
+            return True
+    return name in names
 
 
 def check_output_folder(out: str, force: bool) -> None:
-    """Refuse an existing non-empty folder unless ``force``; refuse a file."""
+    """Refuse a file, and an existing non-empty folder unless ``force``."""
     if os.path.exists(out):
         if not os.path.isdir(out):
             raise ParameterError(f"out: {out!r} exists and is not a folder")
         if os.listdir(out) and not force:
-            raise ParameterError(f"out: folder {out!r} is not empty; use --force to overwrite or another --out")
+            raise ParameterError(f"out: folder {out!r} is not empty; use --force to replace the run in it "
+                                 f"or another --out")
+
+
+def clear_output_folder(out: str, init: str) -> tuple[list[str], list[str]]:
+    """Remove from ``out`` the files an earlier run left there (:func:`written_by_flocking`),
+    so that nothing of it stays beside the new run; return ``(removed, kept)`` names. A run
+    that starts from a trajectory it would remove is refused first."""
+    if not os.path.isdir(out):
+        return [], []
+    names = sorted(os.listdir(out))
+    removed = [n for n in names if written_by_flocking(n) and os.path.isfile(os.path.join(out, n))]
+    if os.path.isfile(init) and any(os.path.samefile(init, os.path.join(out, n)) for n in removed):
+        raise ParameterError(f"init: {init!r} is in the folder --force would clear; copy it elsewhere or "
+                             f"choose another --out")
+    for name in removed:
+        os.remove(os.path.join(out, name))
+    return removed, [n for n in names if n not in removed]
 
 
 def default_output_folder() -> str:
@@ -73,29 +161,35 @@ def default_output_folder() -> str:
 @click.command()
 @model_options
 @click.option("--steps", type=click.INT, default=None,
-              help="Number of steps (with --resume: the run's new total). [default: 1000]")
+              help=with_default("Number of steps (with --resume: the run's new total).", "--steps"))
 @click.option("--every", type=click.INT, default=None,
-              help="A frame every K steps; 0 keeps only the first and the last. [default: 10]")
+              help=with_default("A frame every K steps; 0 keeps only the first and the last.", "--every"))
 @click.option("--checkpoint-every", type=click.INT, default=None,
-              help="A checkpoint every K steps (0: only at the end or on a stop). [default: 1000]")
-@click.option("--init", default=None, help="random, aligned, or a GSD file whose last frame starts the run.")
-@click.option("--backend", default=None, help="cpu (numba, default), reference (NumPy) or cuda.")
+              help=with_default("A checkpoint every K steps (0: only at the end or on a stop).", "--checkpoint-every"))
+@click.option("--init", default=None,
+              help=with_default("random, aligned, or a GSD file whose last frame starts the run.", "--init"))
+@click.option("--backend", default=None,
+              help=with_default("cpu (numba, multi-threaded), reference (NumPy) or cuda.", "--backend"))
 @click.option("--precision", type=click.Choice(["float64", "float32"]), default=None,
-              help="Floating-point precision; float32 with --backend cuda only. [default: float64]")
+              help=with_default("Floating-point precision; float32 with --backend cuda only.", "--precision"))
 @click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
               help="A TOML file of parameters; options given here override it.")
 @click.option("--resume", "resume_dir", default=None,
               help="Continue the run in this folder from its last checkpoint, bit for bit.")
-@click.option("--out", default=None, help="Output folder. [default: runs/run-NNNN, a new one]")
-@click.option("--force", is_flag=True, help="Write into a non-empty output folder.")
+@click.option("--out", default=None, help="Output folder.  [default: runs/run-NNNN, a new one]")
+@click.option("--force", is_flag=True,
+              help="Use a non-empty --out: the files flocking wrote there go, others stay.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
-@click.option("--no-plots", is_flag=True, help="No snapshot.png and polar_order.png at the end.")
-@click.option("--movie", is_flag=True, help="Write movie.mp4 at the end (see flocking animate).")
+@click.option("--plots/--no-plots", default=None,
+              help="snapshot.png and polar_order.png at the end.  [default: --plots; with --resume, as the run began]")
+@click.option("--movie/--no-movie", default=None,
+              help="movie.mp4 at the end (see flocking animate).  [default: --no-movie; with --resume, as the run "
+                   "began]")
 @click.option("--show", is_flag=True, help="A window that shows the flock while it runs.")
 @click.option("--theme", default="dark", show_default=True, help="Pictures and movie: dark or light.")
 @click.option("--dpi", type=click.FLOAT, default=None, help="Pictures: pixels per inch. [default: 200]")
 @click.option("--plot-format", default="png", show_default=True, help="Pictures: png, svg or pdf.")
-def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, theme, dpi, plot_format, **options):
+def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, dpi, plot_format, **options):
     """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
 
     \b
@@ -103,17 +197,19 @@ def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, theme
       flocking run
       flocking run --n 10000 --noise 2.5 --steps 5000 --every 50 --out hot
       flocking run --dim 3 --neighbours topological --k 7 --noise-type vectorial --noise 0.4
-      flocking run --config runs/run-0001/config.toml --out again   # bit for bit
+      flocking run --config runs/run-0001/config.toml --out again   # the same data
       flocking run --resume hot --steps 10000                       # continue, or extend
+      flocking compare runs/run-0001 again                          # check it
     """
     looks = dict(theme=theme, dpi=dpi, fmt=plot_format)
-    if movie or not no_plots:
+    asked = {"plots": plots, "movie": movie}
+    if movie or plots is not False:
         from ..viz.movie import check_picture_options
 
         check_picture_options(**looks)
     if resume_dir is not None:
-        resume(resume_dir, config_file, out, quiet, options, show=show)
-        return pictures(resume_dir, no_plots, movie, quiet, **looks)
+        outputs = resume(resume_dir, config_file, out, quiet, options, asked, show=show)
+        return pictures(resume_dir, quiet, **outputs, **looks)
     file_layer = RunConfig.load(config_file) if config_file else {}
     cfg = RunConfig.from_layers(file_layer, options)
     cfg.check_memory()
@@ -123,21 +219,30 @@ def run(config_file, resume_dir, out, force, quiet, no_plots, movie, show, theme
     from ..simulation import Simulation
 
     sim = Simulation(cfg.model, state, backend=cfg.backend, history=False, **cfg.backend_options())
-    execute(cfg, sim, out, quiet, show=show)
-    pictures(out, no_plots, movie, quiet, **looks)
+    if force:
+        removed, kept = clear_output_folder(out, cfg.init)
+        if removed and not quiet:
+            click.echo(f"flocking: --force: removed {len(removed)} files of an earlier run from {out}"
+                       + (f" (kept {', '.join(kept)})" if kept else ""), err=True)
+    outputs = {k: OUTPUT_CHOICES[k] if v is None else v for k, v in asked.items()}
+    execute(cfg, sim, out, quiet, show=show, outputs=outputs)
+    pictures(out, quiet, **outputs, **looks)
 
 
-def pictures(out: str, no_plots: bool, movie: bool, quiet: bool, **looks) -> None:
-    """snapshot and polar_order pictures (unless ``no_plots``), and movie.mp4 if asked;
-    ``looks``: ``theme``, ``dpi``, ``fmt`` (png, svg or pdf) as :func:`flocking.viz.after_run`."""
-    if movie or not no_plots:
+def pictures(out: str, quiet: bool, plots: bool, movie: bool, **looks) -> None:
+    """snapshot and polar_order pictures if ``plots``, and movie.mp4 if ``movie``; ``looks``:
+    ``theme``, ``dpi``, ``fmt`` (png, svg or pdf) as :func:`flocking.viz.after_run`."""
+    if movie or plots:
         from ..viz import after_run
 
-        after_run(out, plots=not no_plots, movie=movie, quiet=quiet, **looks)
+        after_run(out, plots=plots, movie=movie, quiet=quiet, **looks)
 
 
-def resume(folder: str, config_file, out, quiet: bool, options: dict, show: bool = False) -> None:
-    """Continue the run in ``folder`` from its checkpoint, trimming what came after it."""
+def resume(folder: str, config_file, out, quiet: bool, options: dict, asked: dict, show: bool = False) -> dict:
+    """Continue the run in ``folder`` from its checkpoint, trimming what came after it.
+
+    Returns the :data:`OUTPUT_CHOICES` of the run: those ``asked`` on the command line,
+    the others as the run's checkpoint recorded them."""
     from ..resume import rewind
     from ..simulation import Simulation
 
@@ -165,16 +270,22 @@ def resume(folder: str, config_file, out, quiet: bool, options: dict, show: bool
     if remaining < 0:
         raise ParameterError(f"steps: must be at least {sim.step - sim.origin}, the steps already run "
                              f"(got {cfg.steps})")
+    before = sim.info.get("run", {})
+    outputs = {k: before.get(k, OUTPUT_CHOICES[k]) if v is None else v for k, v in asked.items()}
     rewind(folder, sim.step, sim.origin, cfg.every)
-    execute(cfg, sim, folder, quiet, append=True, show=show)
+    execute(cfg, sim, folder, quiet, append=True, show=show, outputs=outputs)
+    return outputs
 
 
-def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, show: bool = False) -> None:
-    """Run ``sim`` (built from ``cfg``) to ``cfg.steps`` into the folder ``out``."""
+def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, show: bool = False,
+            outputs: dict | None = None) -> None:
+    """Run ``sim`` (built from ``cfg``) to ``cfg.steps`` into the folder ``out``; the
+    checkpoints record ``outputs`` (:data:`OUTPUT_CHOICES`) for a later resume."""
     from ..writers import CheckpointWriter, GSDWriter, ObservablesWriter
 
     mode = "a" if append else "w"
     sim.info["run"] = {k: v for k, v in cfg.to_dict().items() if k in ("every", "init")}
+    sim.info["run"].update(outputs or OUTPUT_CHOICES)
     os.makedirs(out, exist_ok=True)
     write_text(os.path.join(out, "config.toml"), cfg.to_toml())
     sim.writers.append(GSDWriter(os.path.join(out, "trajectory.gsd"), every=cfg.every, mode=mode))
@@ -197,9 +308,11 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     # a file-size limit then raises OSError (EFBIG) like a full disk, instead of killing us
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    compiled = warm_up(cfg)
-    if compiled > 1.0 and not quiet:
-        click.echo(f"flocking: compiled the kernels in {compiled:.0f} s (once: numba caches them)", err=True)
+    compiled = warm_up(cfg, announce=None if quiet else lambda: click.echo(
+        f"flocking: compiling the kernels for this kind of run, {COMPILE_TIME} (only once: numba caches "
+        f"them) ...", err=True))
+    if compiled is not None and not quiet:
+        click.echo(f"flocking: compiled in {compiled:.0f} s", err=True)
     start, first = time.perf_counter(), sim.step
     try:
         sim.run(sim.origin + cfg.steps - sim.step, progress=not quiet and sys.stderr.isatty())
@@ -218,16 +331,66 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
                    f"polar order {sim.polar_order[-1]:.3f}; wrote {out}", err=True)
 
 
-def warm_up(cfg: RunConfig) -> float:
-    """Run two steps of a tiny copy of the model, so that numba compiles (or loads) the
-    kernels before the timed run; returns the seconds it took."""
+#: How long numba takes to compile the kernels of a new kind of run (2D or 3D, metric or
+#: topological, angular or vectorial noise, delay or not): 30 to 50 s of CPU time measured
+#: with ``flocking run`` on the project's 2-core machine, minutes when it was busy.
+COMPILE_TIME = "typically 30 to 50 s, longer on a busy machine"
+
+
+def tiny_model(model: Model) -> Model:
+    """A copy of ``model`` with a few dozen particles at the same density that takes the same
+    kernels: where ``model``'s box sides are at least 3.5 R, so are the copy's (the CPU
+    backend's fast metric path needs three cells of side R along every axis).
+
+    >>> tiny_model(Model(n=100_000, radius=2.0)).box, tiny_model(Model(n=100_000)).n
+    ((7.0, 7.0), 64)
+    >>> tiny_model(Model(n=10)) == Model(n=10)
+    True
+    """
+    side = (64 / model.density) ** (1.0 / model.dim)
+    if model.neighbours == "metric":
+        side = max(side, 3.5 * model.radius)
+    box = [min(length, side) for length in model.box]
+    n = max(len(model.species), round(model.density * math.prod(box)))
+    if n >= model.n:
+        return model
+    # a short step and one small obstacle fit any tiny box; species as fractions of its n
+    changes = dict(n=n, box=box, speed=min(model.speed, min(box) / (16 * model.dt)))
+    if model.obstacles:
+        changes["obstacles"] = [{"centre": [x / 2 for x in box], "radius": min(box) / 8}]
+    if model.species:
+        counts = model.species_counts
+        changes["species"] = [{**{k: v for k, v in s.to_dict().items() if k not in ("n", "speed")},
+                               "fraction": c / sum(counts)} for s, c in zip(model.species, counts)]
+    return model.replace(**changes)
+
+
+def warm_up(cfg: RunConfig, announce=None) -> float | None:
+    """Run two steps of a tiny copy of the model and take a frame, so that numba compiles (or
+    loads from its cache) the kernels before the timed run. ``announce()`` is called when a compilation
+    starts (numba's ``numba:compile`` event fires on cache misses only); returns the
+    seconds the warm-up took if something was compiled, else None."""
+    from numba.core import event
+
     from ..simulation import Simulation
     from ..state import State
 
+    class FirstCompile(event.Listener):
+        started = False
+
+        def on_start(self, ev):
+            if not self.started:
+                self.started = True
+                if announce is not None:
+                    announce()
+
+        def on_end(self, ev):
+            pass
+
     start = time.perf_counter()
-    model = cfg.model
-    # the kernels compiled depend on the types, not the values: a speed that suits the
-    # tiny box (whose side may be below twice the real step) compiles the same code
-    tiny = model.replace(n=min(model.n, 64), density=model.density, speed=1e-3, dt=1.0)
-    Simulation(tiny, State.random(tiny), backend=cfg.backend, **cfg.backend_options()).run(2)
-    return time.perf_counter() - start
+    tiny = tiny_model(cfg.model)
+    with event.install_listener("numba:compile", FirstCompile()) as listener:
+        sim = Simulation(tiny, State.random(tiny), backend=cfg.backend, **cfg.backend_options())
+        sim.run(2)
+        sim.backend.frame_arrays()  # what the trajectory writer calls
+    return time.perf_counter() - start if listener.started else None
