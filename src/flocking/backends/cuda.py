@@ -166,7 +166,6 @@ class Engine:
         self._cells = cells
 
         self._block, self._qb = block, -(-n // block)
-        self._tiles = -(-m // kernels.tile)
         self._passes = passes(max(1, (r * cells - 1).bit_length()), bits)
         dev = cuda.device_array
         self._pos, self._head = dev((d, m), real), dev((d, m), real)
@@ -183,7 +182,7 @@ class Engine:
         self._clock = cuda.to_device(np.array([states[0].step, 1], dtype=np.int64))
         self._hist = cuda.to_device(np.zeros(kernels.max_passes * kernels.digits_per_pass, dtype=np.int32))
         self._tile_counter = cuda.to_device(np.zeros(kernels.max_passes, dtype=np.int32))
-        self._status = cuda.to_device(np.zeros(self._tiles * kernels.digits_per_pass, dtype=np.int64))
+        self._status = cuda.to_device(np.zeros(-(-m // kernels.tile) * kernels.digits_per_pass, dtype=np.int64))
         self._taus = [x.delay for x in models]
         self._ring = cuda.to_device(np.zeros((m, max(self._taus), 4) if max(self._taus) else (1, 1, 4), dtype=real))
         self._step_count = states[0].step
@@ -247,13 +246,9 @@ class Engine:
     def _sort(self, tick: bool, stream=0) -> None:
         """Sort ``rec`` (id order) by cell into the live arrays; cell starts; with
         ``tick``, the step counter moves on and the polar order goes into its row."""
-        k, block, m = self._k, self._block, self.replicas * self.n
-        k.digits[self._tiles, block, stream](self._rec, self._hist, m, self._passes, self._clock, tick)
-        src, dst = self._rec, self._rec2
-        for p in range(self._passes):
-            k.scatter[self._tiles, block, stream](src, dst, m, p, self._hist, self._status, self._tile_counter,
-                                                  self._clock)
-            src, dst = dst, src
+        k, block = self._k, self._block
+        src = _radix(k, self._rec, self._rec2, self.replicas * self.n, self._passes, self._hist, self._status,
+                     self._tile_counter, self._clock, tick, stream)
         k.gather[self.replicas * self._qb, block, stream](
             src, self._new_pos, self._new_head, self._new_ids, self._new_spd, self._ints,
             self._pos, self._head, self._ids, self._spd, self._start, self._partial)
@@ -354,6 +349,42 @@ class Engine:
             saved[..., d] = block[..., 3].T
             out.append({"ring": saved})
         return out
+
+
+def _radix(k, rec, rec2, m: int, npass: int, hist, status, tiles, clock, tick: bool, stream=0):
+    """Sort ``rec[:m]`` by the upper 32 bits (``npass`` radix passes, ``rec2`` the other
+    buffer); the buffer that holds the result."""
+    grid = -(-m // k.tile)
+    k.digits[grid, k.block, stream](rec, hist, m, npass, clock, tick)
+    src, dst = rec, rec2
+    for p in range(npass):
+        k.scatter[grid, k.block, stream](src, dst, m, p, hist, status, tiles, clock)
+        src, dst = dst, src
+    return src
+
+
+def radix_sort(records: np.ndarray, key_bits: int = 31, shape: tuple[int, int, int] | None = None) -> np.ndarray:
+    """``records`` (uint64) sorted stably by their upper 32 bits, which must be below
+    ``2**key_bits``, by the device's radix sort (the sort of every step, on its own).
+
+    ``shape`` is (threads per block, bits a pass, items a thread); by default the one
+    the backend uses on this device (or under the simulator).
+    """
+    cuda = _cuda()
+    from .cuda_kernels import build, passes
+
+    block, bits, items = shape or (_SIM_SHAPE if _simulated() else _GPU_SHAPE)
+    k = build("float64", 2, 0, block, bits, items)
+    records = np.ascontiguousarray(records, dtype=np.uint64)
+    m = len(records)
+    if m == 0:
+        return records.copy()
+    rec, rec2 = cuda.to_device(records), cuda.device_array(m, np.uint64)
+    hist = cuda.to_device(np.zeros(k.max_passes * k.digits_per_pass, dtype=np.int32))
+    tiles = cuda.to_device(np.zeros(k.max_passes, dtype=np.int32))
+    status = cuda.to_device(np.zeros(-(-m // k.tile) * k.digits_per_pass, dtype=np.int64))
+    clock = cuda.to_device(np.array([0, 1], dtype=np.int64))
+    return _radix(k, rec, rec2, m, passes(key_bits, bits), hist, status, tiles, clock, False).copy_to_host()
 
 
 def check_models(models: Sequence[Model]) -> None:

@@ -115,10 +115,12 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
     BITS, DIGITS = bits, 1 << bits
     if DIGITS > BLOCK:
         raise ValueError("build: 2**bits must not exceed block")
-    SUB = min(bits, 4)  # the tile is ranked SUB bits at a time (counters a thread a sub-digit)
-    NSUB, SUBD = bits // SUB, 1 << SUB
-    if NSUB * SUB != bits:
-        raise ValueError("build: bits must be a multiple of min(bits, 4)")
+    if bits % 2:
+        raise ValueError("build: bits must be even")
+    # a tile is ranked in two halves of the digit (keys -> other -> keys), with a counter
+    # per (half-digit, thread): 16 x BLOCK for 8-bit digits
+    SUB = bits // 2
+    SUBD = 1 << SUB
     ITEMS, TILE = items, block * items
     PMAX = passes(31, bits)
     HSIZE, CSIZE = PMAX * DIGITS, SUBD * BLOCK  # shared array sizes must be constants
@@ -150,6 +152,8 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
 
     @cuda.jit(device=True)
     def wrap(x, length):
+        if not abs(x) < INF:  # NaN or infinite (a broken state): left as it is
+            return x
         x = x - length * real(math.floor(x / length))
         if x >= length:
             x -= length
@@ -542,7 +546,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         """Pass ``p`` of the radix sort, ``src[:m]`` into ``dst``: stable by the digit.
 
         Tiles are handed out in launch order by ``tiles[p]``. A block loads its tile and
-        sorts it stably by the digit in shared memory, SUB bits at a time: each thread
+        sorts it stably by the digit in shared memory, half a digit at a time: each thread
         counts its own run of items into its column of ``cnt``, a prefix sum over
         (sub-digit, thread) gives every item its place. It then learns, per digit, how
         many items the tiles before it hold (decoupled look-back: each tile publishes its
@@ -577,8 +581,8 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
                 cuda.atomic.add(tcount, digit_of(v, shift), 1)
             keys[q * BLOCK + tid] = v
         cuda.syncthreads()
-        # stable sort of the tile by the digit, SUB bits at a time (keys -> other -> keys)
-        for sp in range(NSUB):
+        # stable sort of the tile by the digit, one half at a time (keys -> other -> keys)
+        for sp in range(2):
             a, b = (keys, other) if sp % 2 == 0 else (other, keys)
             sub = shift + np.uint64(sp * SUB)
             for q in range(ITEMS):
@@ -607,7 +611,6 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
             for e in range(SUBD):
                 cnt[e * BLOCK + tid] = 0
             cuda.syncthreads()
-        out = keys if NSUB % 2 == 0 else other
         # where each digit starts in the tile, and in the whole output
         part[tid] = tcount[tid] if tid < DIGITS else 0
         more[tid] = hist[p * DIGITS + tid] if tid < DIGITS else 0
@@ -637,7 +640,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         cuda.syncthreads()
         for q in range(ITEMS):
             at = q * BLOCK + tid
-            v = out[at]
+            v = keys[at]
             d = digit_of(v, shift)
             rank = at - tstart[d]
             if rank < tcount[d]:
