@@ -72,6 +72,7 @@ class Ensemble:
         self.precision = precision
         self.origin = states[0].step if states else 0
         self._states: list[State] | None = None
+        self._last = np.array([s.polar_order() for s in states])  # each replica's latest polar order
         if backend == "cuda":
             self._engine = Engine(models, states, memories, precision=precision)
             self._singles = None
@@ -97,8 +98,12 @@ class Ensemble:
         """Take ``steps`` steps with every replica; the polar order after each, ``(R, steps)``."""
         self._states = None
         if self._engine is not None:
-            return self._engine.advance(steps)
-        return np.stack([b.advance(steps) for b in self._singles]) if steps else np.empty((self.replicas, 0))
+            phi = self._engine.advance(steps)
+        else:
+            phi = np.stack([b.advance(steps) for b in self._singles]) if steps else np.empty((self.replicas, 0))
+        if steps:
+            self._last = phi[:, -1].copy()
+        return phi
 
     @property
     def states(self) -> list[State]:
@@ -164,7 +169,8 @@ class Ensemble:
 
 class Replica:
     """One replica of an :class:`Ensemble`, seen as writers see a :class:`Simulation`:
-    ``model``, ``step``, ``state``, ``origin``, ``parameters()``, ``backend`` (with
+    ``model``, ``step``, ``state``, ``origin``, ``polar_order`` (the latest value, as a
+    simulation with ``history=False`` holds it), ``parameters()``, ``backend`` (with
     ``name``, ``memory()`` and ``frame_arrays()``) and :meth:`save_checkpoint`, whose file
     :meth:`Simulation.load_checkpoint` continues as a single system."""
 
@@ -190,6 +196,10 @@ class Replica:
     @property
     def state(self) -> State:
         return self.ensemble.states[self.index]
+
+    @property
+    def polar_order(self) -> list[float]:
+        return [float(self.ensemble._last[self.index])]
 
     def memory(self) -> dict[str, np.ndarray]:
         return self.ensemble.memory()[self.index]
