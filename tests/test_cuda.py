@@ -362,3 +362,71 @@ def test_device_float32_throughput():
     backend.advance(50)
     rate = 50 * model.n / (time.perf_counter() - t0)
     assert rate > 1e8
+
+
+@pytest.mark.gpu
+@gpu
+@pytest.mark.parametrize("kw", [dict(), dict(delay=3), dict(dim=3, neighbours="topological", k=7)])
+def test_device_graphs_equal_host_launches(kw):
+    """Replaying the captured CUDA graph takes bit for bit the steps of host launches
+    (more steps than the device's polar-order table holds, so it wraps)."""
+    from flocking.backends.cuda import CUDABackend
+
+    model = flocking.Model(**{"n": 20_000, "density": 2.0, "noise": 1.0, "seed": 5, **kw})
+    state = flocking.State.random(model)
+    a, b = CUDABackend(model, state), CUDABackend(model, state, graphs=False)
+    steps = a._engine.rows + 7
+    assert (a.advance(steps) == b.advance(steps)).all()
+    assert a._engine._graph is not None, "no CUDA graph was captured on this device"
+    assert (a.state.headings == b.state.headings).all() and (a.state.positions == b.state.positions).all()
+
+
+@pytest.mark.gpu
+@gpu
+def test_device_radix_sort_of_crowded_cells():
+    """A million records, half of them in one cell, a fifth in three others: sorted
+    stably by cell (many tiles, three passes)."""
+    from flocking.backends.cuda import radix_sort
+
+    rng = np.random.default_rng(2)
+    m = 1_000_000
+    keys = np.where(rng.random(m) < 0.5, 12345, rng.integers(0, 2**20, m))
+    keys[rng.random(m) < 0.2] = rng.choice([7, 99, 2**20 - 1])
+    rec = (keys.astype(np.uint64) << np.uint64(32)) | rng.permutation(m).astype(np.uint64)
+    assert (radix_sort(rec, 20) == rec[np.argsort(rec >> np.uint64(32), kind="stable")]).all()
+
+
+@pytest.mark.gpu
+@gpu
+def test_device_ensemble_replicas_equal_single_runs():
+    from flocking.backends.cuda import CUDABackend
+
+    base = flocking.Model(n=1024, density=2.0, noise=1.0)
+    models = [base.replace(seed=s, noise=0.5 + s, delay=s % 3, alignment=1.0 - 0.1 * s) for s in range(5)]
+    ens = flocking.Ensemble(models, precision="float32")
+    phi = ens.advance(40)
+    for r, model in enumerate(models):
+        alone = CUDABackend(model, flocking.State.random(model), precision="float32")
+        assert (alone.advance(40) == phi[r]).all()
+        assert (alone.state.headings == ens.states[r].headings).all()
+
+
+@pytest.mark.gpu
+@gpu
+def test_device_sort_costs_the_same_however_crowded():
+    """Sorting 4e6 records all in one cell takes no longer than sorting them spread over
+    2**21 cells (within 1.5x; the per-cell insertion sort it replaced was quadratic in
+    the crowding)."""
+    from flocking.backends.cuda import radix_sort
+
+    rng = np.random.default_rng(3)
+    m = 4_000_000
+    slots = rng.permutation(m).astype(np.uint64)
+    times = []
+    for keys in (rng.integers(0, 2**21, m), np.full(m, 2**20)):
+        rec = (keys.astype(np.uint64) << np.uint64(32)) | slots
+        radix_sort(rec, 21)  # compile
+        t0 = time.perf_counter()
+        radix_sort(rec, 21)
+        times.append(time.perf_counter() - t0)
+    assert times[1] < 1.5 * times[0]
