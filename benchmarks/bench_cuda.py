@@ -1,93 +1,176 @@
-"""Throughput of the cuda backend against its targets and the cpu backend on all host cores.
+"""Throughput of the cuda backend against the targets of docs/gpu.md, and its kernels' resources.
 
-Run it on a machine with an NVIDIA GPU and ``pip install 'flocking[cuda]'``::
+On a machine with an NVIDIA GPU and ``pip install 'flocking[cuda]'``::
 
-    python benchmarks/bench_cuda.py            # the cases of the targets (N = 1e7, 1e8)
-    python benchmarks/bench_cuda.py --quick    # N / 10, a minute or so
-    python benchmarks/bench_cuda.py --init aligned --noise 0.3   # the ordered regime
-    NUMBA_ENABLE_CUDASIM=1 python benchmarks/bench_cuda.py --scale 3e-6 --steps 1 --repeats 1
-                                               # smoke test of the script, no GPU (slow)
+    python benchmarks/bench_cuda.py              # every case (a few minutes on an H100)
+    python benchmarks/bench_cuda.py --quick      # every N / 10
+    python benchmarks/bench_cuda.py --case clustered --case ensemble
+    python benchmarks/bench_cuda.py --no-graphs  # every kernel launched from the host
+    python benchmarks/bench_cuda.py --ptx        # no GPU needed: compile every kernel for
+                                                 # sm_90, print registers, spills, shared memory
+    NUMBA_ENABLE_CUDASIM=1 python benchmarks/bench_cuda.py --case 2d-float32 --scale 5e-6 --steps 1 --repeats 1
+                                                 # smoke test of the script itself, no GPU
 
-Each case builds the system, takes a few untimed steps (compilation, caches), then times
-``--repeats`` chunks of ``--steps`` steps and prints the median particle-steps per second.
-The cpu backend runs the same model (fewer steps) for the side-by-side column.
+Each case builds its system(s), takes a few untimed steps (compilation, the CUDA graph),
+then times ``--repeats`` chunks of ``--steps`` steps and prints the median particle-steps
+per second (an ensemble's summed over replicas) beside its target. ``advance`` ends with a
+copy of the polar order to the host, so the GPU has finished when the clock stops.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
+import numpy as np
+
 import flocking
-from flocking.backends import get
+from flocking.backends.cuda import CUDABackend
 
-#: (label, dim, N, precision, target particle-steps/s or None)
-CASES = [
-    ("2D metric", 2, 10**7, "float32", 1e9),
-    ("2D metric", 2, 10**7, "float64", 5e8),
-    ("3D metric", 3, 10**7, "float64", 3e8),
-    ("3D metric", 3, 10**7, "float32", None),
-    ("2D metric", 2, 10**8, "float32", None),
-]
+#: name -> (what, target particle-steps/s, or for "delay" the ratio to no delay)
+CASES = {
+    "2d-float32": ("2D, N = 1e7, density 2, float32", 5e9),
+    "2d-float64": ("2D, N = 1e7, density 2, float64", 3.5e9),
+    "3d": ("3D, N = 1e7, density 1, float32", 3.5e9),
+    "clustered": ("2D, N = 1e6, noise 0.3, 600 steps from random, float64", 3e8),
+    "small": ("2D, one system of N = 1e4, float64", 1e8),
+    "ensemble": ("2D, 1024 replicas of N = 1024, seeds and noises differ, float32, summed", 3e9),
+    "topological": ("2D, k = 7, N = 1e7, float32", 1.5e9),
+    "delay": ("2D, delay 10 vs none, N = 1e7, float32: ratio", 0.8),
+}
 
 
-def rate(backend_name: str, model: flocking.Model, init: str, steps: int, repeats: int,
-         **options) -> float:
-    """Median particle-steps per second of ``repeats`` timed chunks of ``steps`` steps."""
-    state = flocking.State.aligned(model) if init == "aligned" else flocking.State.random(model)
-    backend = get(backend_name)(model, state, **options)
-    backend.advance(2)  # compile and warm up
+def timed(advance, steps: int, repeats: int, particles: int) -> float:
+    """Median particle-steps per second of ``repeats`` calls ``advance(steps)``."""
+    advance(2)  # compile, capture the graph
     rates = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        backend.advance(steps)  # ends with a device-to-host copy: the GPU is done
-        rates.append(steps * model.n / (time.perf_counter() - t0))
+        advance(steps)
+        rates.append(steps * particles / (time.perf_counter() - t0))
     return statistics.median(rates)
+
+
+def single(model: flocking.Model, precision: str, args, state: flocking.State | None = None) -> float:
+    backend = CUDABackend(model, state or flocking.State.random(model), precision=precision,
+                          graphs=not args.no_graphs)
+    return timed(backend.advance, args.steps, args.repeats, model.n)
+
+
+def run_case(name: str, args) -> float:
+    scale = args.scale * (0.1 if args.quick else 1.0)
+    big = max(int(1e7 * scale), 100)
+    if name in ("2d-float32", "2d-float64"):
+        return single(flocking.Model(n=big, density=2.0, noise=1.0, seed=1), name[3:], args)
+    if name == "3d":
+        return single(flocking.Model(dim=3, n=big, density=1.0, noise=1.0, seed=1), "float32", args)
+    if name == "clustered":
+        model = flocking.Model(n=max(int(1e6 * scale), 100), density=2.0, noise=0.3, seed=1)
+        warm = CUDABackend(model, flocking.State.random(model), graphs=not args.no_graphs)
+        warm.advance(600)
+        return single(model, "float64", args, warm.state)
+    if name == "small":
+        return single(flocking.Model(n=10_000, density=2.0, noise=1.0, seed=1), "float64", args)
+    if name == "ensemble":
+        replicas = max(int(1024 * scale), 2) if args.quick else 1024
+        noises = np.linspace(0.5, 4.0, replicas)
+        models = [flocking.Model(n=1024, density=2.0, noise=float(eta), seed=r) for r, eta in enumerate(noises)]
+        ens = flocking.Ensemble(models, backend="cuda", precision="float32")
+        return timed(ens.advance, args.steps, args.repeats, 1024 * replicas)
+    if name == "topological":
+        return single(flocking.Model(n=big, density=2.0, noise=1.0, neighbours="topological", k=7, seed=1),
+                      "float32", args)
+    if name == "delay":
+        plain = single(flocking.Model(n=big, density=2.0, noise=1.0, seed=1), "float32", args)
+        delayed = single(flocking.Model(n=big, density=2.0, noise=1.0, delay=10, seed=1), "float32", args)
+        print(f"  delay 10: {delayed:.3e}, none: {plain:.3e}")
+        return delayed / plain
+    raise ValueError(name)
+
+
+def ptx_report() -> None:
+    """Compile every kernel for sm_90 (numba's compiler, no GPU) and let ptxas report
+    registers, spills and shared memory of each (needs the CUDA toolkit's ptxas)."""
+    import types
+
+    from numba import cuda
+    from numba import types as nt
+
+    import numba.cuda.dispatcher as dispatcher
+
+    # device functions ask the current device for its compute capability: there is none
+    dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
+    from flocking.backends.cuda_kernels import build
+
+    def a(dt, nd):
+        return nt.Array(dt, nd, "C")
+
+    i64, i32, u64, f64, b = nt.int64, nt.int32, nt.uint64, nt.float64, nt.boolean
+    with tempfile.TemporaryDirectory() as folder:
+        for precision, real in (("float64", nt.float64), ("float32", nt.float32)):
+            for dim in (2, 3):
+                for k in (0, 7):
+                    kernels = build(precision, dim, k, 256, 8, 8)
+                    signatures = {
+                        "step": (a(real, 2), a(real, 2), a(real, 1), a(i32, 1), a(i32, 1), a(real, 1), a(i64, 1),
+                                 a(real, 2), a(i64, 1), a(u64, 1), a(i64, 1), a(real, 3), b, a(real, 2),
+                                 a(real, 2), a(i32, 1), a(real, 1), a(u64, 1)),
+                        "cells": (a(real, 2), a(real, 1), a(i64, 1), a(u64, 1)),
+                        "digits": (a(u64, 1), a(i32, 1), i64, i64, a(i64, 1), b),
+                        "scatter": (a(u64, 1), a(u64, 1), i64, i64, a(i32, 1), a(i64, 1), a(i32, 1), a(i64, 1)),
+                        "gather": (a(u64, 1), a(real, 2), a(real, 2), a(i32, 1), a(real, 1), a(i64, 1),
+                                   a(real, 2), a(real, 2), a(i32, 1), a(real, 1), a(i32, 1), a(f64, 2)),
+                        "finish": (a(f64, 2), a(i64, 1), a(f64, 3), a(i64, 1), a(i32, 1), a(i32, 1), b),
+                    }
+                    for name, signature in signatures.items():
+                        if k and name != "step":
+                            continue  # only the step kernel depends on k
+                        ptx, _ = cuda.compile_ptx(getattr(kernels, name).py_func, signature, cc=(9, 0))
+                        path = f"{folder}/{name}.ptx"
+                        with open(path, "w") as f:
+                            f.write(ptx)
+                        out = subprocess.run(["ptxas", "-arch=sm_90", "-v", path, "-o", "/dev/null"],
+                                             capture_output=True, text=True).stderr
+                        info = "; ".join(line.split("info    : ")[-1] for line in out.splitlines()
+                                         if "Used" in line or "spill" in line)
+                        print(f"{precision} {dim}D k={k} {name:8s} {info}", flush=True)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--case", action="append", choices=list(CASES), help="run only these (repeatable)")
     parser.add_argument("--quick", action="store_true", help="every N divided by 10")
     parser.add_argument("--scale", type=float, default=1.0, help="multiply every N by this")
-    parser.add_argument("--steps", type=int, default=20, help="steps per timed chunk (gpu)")
+    parser.add_argument("--steps", type=int, default=50, help="steps per timed chunk")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--cpu-steps", type=int, default=3, help="steps per timed chunk (cpu)")
-    parser.add_argument("--no-cpu", action="store_true", help="skip the cpu column")
-    parser.add_argument("--density", type=float, default=2.0)
-    parser.add_argument("--noise", type=float, default=1.0)
-    parser.add_argument("--init", choices=["random", "aligned"], default="random")
+    parser.add_argument("--no-graphs", action="store_true", help="launch every kernel from the host")
+    parser.add_argument("--ptx", action="store_true", help="compile for sm_90 and report resources; no GPU")
     args = parser.parse_args()
+    if args.ptx:
+        ptx_report()
+        return
 
     from numba import cuda
 
-    name = cuda.get_current_device().name if hasattr(cuda, "get_current_device") else "CUDA simulator"
-    name = name.decode() if isinstance(name, bytes) else name
-    print(f"device: {name}; host cores: {os.cpu_count()}; density {args.density}, noise {args.noise}, init {args.init}")
-    header = f"{'case':<10} {'N':>9} {'precision':<9} {'cuda':>10} {'target':>8} {'cpu':>10} {'cuda/cpu':>8}"
-    print(header)
-    print("-" * len(header))
-    cpu_cache: dict = {}
-    for label, dim, n, precision, target in CASES:
-        n = max(int(n * args.scale * (0.1 if args.quick else 1.0)), 10)
-        model = flocking.Model(dim=dim, n=n, density=args.density, noise=args.noise, seed=1)
+    # the simulator has no device to name (a smoke test of this script: NUMBA_ENABLE_CUDASIM=1)
+    device = cuda.get_current_device().name if hasattr(cuda, "get_current_device") else "CUDA simulator"
+    device = device.decode() if isinstance(device, bytes) else device
+    print(f"device: {device}; graphs: {not args.no_graphs}; {args.steps} steps x {args.repeats}, median")
+    for name in args.case or CASES:
+        what, target = CASES[name]
         try:
-            gpu = rate("cuda", model, args.init, args.steps, args.repeats, precision=precision)
+            value = run_case(name, args)
         except Exception as err:  # noqa: BLE001 - e.g. out of device memory: report and go on
-            print(f"{label:<10} {n:>9.0e} {precision:<9} failed: {type(err).__name__}: {err}")
+            print(f"{name:12s} {what}: failed: {type(err).__name__}: {err}", flush=True)
             continue
-        cpu = None
-        if not args.no_cpu and n <= 10**7:  # N = 1e8 on the cpu: minutes per step
-            key = (dim, n)
-            if key not in cpu_cache:
-                cpu_cache[key] = rate("cpu", model, args.init, args.cpu_steps, args.repeats)
-            cpu = cpu_cache[key]
-        flag = "" if target is None else ("ok" if gpu >= target else "MISSED")
-        print(f"{label:<10} {n:>9.0e} {precision:<9} {gpu:>10.3e} "
-              f"{'' if target is None else f'{target:.0e}':>8} "
-              f"{'' if cpu is None else f'{cpu:.3e}':>10} {'' if cpu is None else f'{gpu / cpu:.1f}x':>8} {flag}")
+        verdict = "ok" if value >= target else "MISSED"
+        unit = "x" if name == "delay" else " particle-steps/s"
+        print(f"{name:12s} {value:10.3e}{unit}  target {target:.1e}  {verdict}  ({what})", flush=True)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -42,12 +42,29 @@ CASES = {
                                               noise_type="vectorial"), 2, "float32"),
 }
 
+#: datasets of the sort test (see ``sorts`` in the harness)
+SORTS = ["one-cell", "three-crowded-cells", "random-12-bit"]
+
 HARNESS = r"""
-import json, sys
+import json, sys, tempfile, os, warnings
 import numpy as np
 import flocking
-from flocking.backends.cuda import CUDABackend
+from flocking.backends.cuda import CUDABackend, radix_sort
 from flocking.backends.reference import ReferenceBackend
+from numba.cuda.simulator.cudadrv import devicearray
+
+def nonnegative(access):
+    # the simulator indexes device arrays with NumPy, where -1 is the last element:
+    # make a negative index (out of bounds on a GPU) raise as one past the end does
+    def checked(self, idx, *value):
+        for i in idx if isinstance(idx, tuple) else (idx,):
+            if isinstance(i, (int, np.integer)) and i < 0:
+                raise IndexError(f"negative index {idx} into a device array")
+        return access(self, idx, *value)
+    return checked
+
+devicearray.FakeCUDAArray.__getitem__ = nonnegative(devicearray.FakeCUDAArray.__getitem__)
+devicearray.FakeCUDAArray.__setitem__ = nonnegative(devicearray.FakeCUDAArray.__setitem__)
 
 def start(name, model):
     state = flocking.State.random(model)
@@ -59,47 +76,140 @@ def start(name, model):
         state = ref.state
     return state
 
-out = {}
-for name, (kw, steps, precision) in json.loads(sys.argv[1]).items():
+def same_state(a, b):
+    return bool((a.positions == b.positions).all() and (a.headings == b.headings).all()
+                and (a.speeds == b.speeds).all() and a.step == b.step)
+
+def cases(spec):
+    out = {}
+    for name, (kw, steps, precision) in spec.items():
+        model = flocking.Model(**{"n": 40, "box": 5.0, "noise": 1.0, "seed": 7, **kw})
+        state = start(name, model)
+        gpu = CUDABackend(model, state, precision=precision)
+        phi = gpu.advance(steps)
+        ref = ReferenceBackend(model, state)
+        phi_ref = ref.advance(steps)
+        a, b = gpu.state, ref.state
+        res = dict(
+            dh=float(np.abs(a.headings - b.headings).max()),
+            dp=float(np.abs(a.positions - b.positions).max()),
+            dphi=float(np.abs(phi - phi_ref).max()),
+            ds=float(np.abs(a.speeds - b.speeds).max()),
+            step=[gpu.step, a.step, b.step],
+            unit=float(np.abs(np.linalg.norm(a.headings, axis=1) - 1).max()),
+            inside=bool(((a.positions >= 0) & (a.positions < np.asarray(model.box))).all()),
+        )
+        if name == "2d-clustered":  # the same run again, bit for bit
+            again = CUDABackend(model, state, precision=precision)
+            res["repeat"] = bool((again.advance(steps) == phi).all()
+                                 and (again.state.headings == a.headings).all())
+        out[name] = res
+    return out
+
+def ensemble(name, base, variants, precision, steps=3, more=2):
+    # each replica against the same model alone, bit for bit; then a replica's
+    # checkpoint continued alone against the ensemble continued
+    models = [base.replace(**v) for v in variants]
+    ens = flocking.Ensemble(models, backend="cuda", precision=precision)
+    phi = ens.advance(steps)
+    alone = [CUDABackend(m, flocking.State.random(m), precision=precision) for m in models]
+    res = {"phi": [bool((phi[r] == b.advance(steps)).all()) for r, b in enumerate(alone)],
+           "state": [same_state(ens.states[r], b.state) for r, b in enumerate(alone)],
+           "memory": [sorted(m) == sorted(b.memory()) and all((m[k] == b.memory()[k]).all() for k in m)
+                      for m, b in zip(ens.memory(), alone)]}
+    path = os.path.join(tempfile.mkdtemp(), "replica.npz")
+    last = len(models) - 1
+    ens.replica(last).save_checkpoint(path)
+    sim = flocking.Simulation.load_checkpoint(path)
+    sim.run(more)
+    phi_more = ens.advance(more)
+    a, b = sim.state, ens.states[last]
+    res["resumed"] = bool(same_state(a, b) and (np.asarray(sim.polar_order[1:]) == phi_more[last]).all())
+    res["resumed_dh"] = float(np.abs(a.headings - b.headings).max())
+    res["resumed_backend"] = sim.backend.name
+    return res
+
+def safety(kw, precision):
+    # NaN, infinite and huge coordinates: no kernel may go out of bounds, and every
+    # other particle takes the reference's step; then a NaN heading on top (whose
+    # particle's position turns NaN), for three steps. (The reference sums headings with
+    # a matrix product, in which one NaN heading spoils every sum: not compared there.)
     model = flocking.Model(**{"n": 40, "box": 5.0, "noise": 1.0, "seed": 7, **kw})
-    state = start(name, model)
-    gpu = CUDABackend(model, state, precision=precision)
-    phi = gpu.advance(steps)
-    ref = ReferenceBackend(model, state)
-    phi_ref = ref.advance(steps)
-    a, b = gpu.state, ref.state
-    res = dict(
-        dh=float(np.abs(a.headings - b.headings).max()),
-        dp=float(np.abs(a.positions - b.positions).max()),
-        dphi=float(np.abs(phi - phi_ref).max()),
-        ds=float(np.abs(a.speeds - b.speeds).max()),
-        step=[gpu.step, a.step, b.step],
-        unit=float(np.abs(np.linalg.norm(a.headings, axis=1) - 1).max()),
-        inside=bool(((a.positions >= 0) & (a.positions < np.asarray(model.box))).all()),
-    )
-    if name == "2d-clustered":  # the same run again, bit for bit
-        again = CUDABackend(model, state, precision=precision)
-        res["repeat"] = bool((again.advance(steps) == phi).all()
-                             and (again.state.headings == a.headings).all())
-    out[name] = res
+    state = flocking.State.random(model)
+    bad = [[np.nan, 1.0], [np.inf, -np.inf], [1e300, -1e300], [2.0, np.nan], [-1e300, 3.0]]
+    for i, p in enumerate(bad):
+        state.positions[i] = p
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        gpu = CUDABackend(model, state, precision=precision)
+        gpu.advance(1)
+        ref = ReferenceBackend(model, state)
+        ref.advance(1)
+        a, b = gpu.state, ref.state
+        state.headings[len(bad)] = [np.nan, np.nan]
+        worse = CUDABackend(model, state, precision=precision)
+        worse.advance(3)
+    rest = slice(len(bad), None)
+    return dict(dh=float(np.abs(a.headings - b.headings)[rest].max()),
+                dp=float(np.abs(a.positions - b.positions)[rest].max()), step=worse.step,
+                nan_heading=bool(np.isnan(worse.state.positions[len(bad)]).any()))
+
+def sorts(shape, names, scale):
+    # records (cell << 32 | slot) in any order: sorted stably by cell, however crowded
+    rng = np.random.default_rng(1)
+    data = {"one-cell": (np.zeros(300 * scale, dtype=np.int64), 1),
+            "three-crowded-cells": (rng.choice([5, 9, 700], 500 * scale, p=[0.7, 0.2, 0.1]), 12),
+            "random-12-bit": (rng.integers(0, 4096, 700 * scale), 12)}
+    out = {}
+    for name in names:
+        keys, bits = data[name]
+        rec = (keys.astype(np.uint64) << np.uint64(32)) | rng.permutation(len(keys)).astype(np.uint64)
+        got = radix_sort(rec, bits, shape)
+        out[name] = bool((got == rec[np.argsort(rec >> np.uint64(32), kind="stable")]).all())
+    return out
+
+job = json.loads(sys.argv[1])
+out = {}
+if "cases" in job:
+    out["cases"] = cases(job["cases"])
+if "ensembles" in job:
+    base = flocking.Model(n=40, box=5.0, noise=1.0, seed=7)
+    out["ensembles"] = {
+        "2d": ensemble("2d", base, [dict(seed=3), dict(seed=4, noise=2.5, alignment=0.6, speed=0.3, delay=2),
+                                    dict(seed=5, speeds="uniform", delay=1)], "float64"),
+        "3d-topological-float32": ensemble("3d", flocking.Model(dim=3, n=40, box=5.0, noise=1.0, neighbours="topological", k=4),
+                                           [dict(seed=1, delay=1), dict(seed=2, noise=0.3)], "float32", 2, 1),
+    }
+if "safety" in job:
+    out["safety"] = {"metric": safety({}, "float64"),
+                     "topological-float32": safety(dict(neighbours="topological", k=3), "float32")}
+if "sorts" in job:
+    out["sorts"] = sorts(tuple(job["sorts"]["shape"]), job["sorts"]["names"], job["sorts"]["scale"])
 print("RESULT" + json.dumps(out))
 """
 
 
-@pytest.fixture(scope="module")
-def simulated():
+def simulate(job: dict) -> dict:
+    """Run ``HARNESS`` on ``job`` under numba's CUDA simulator, in a subprocess."""
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": SRC}
-    proc = subprocess.run([sys.executable, "-c", HARNESS, json.dumps(CASES)], env=env,
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([sys.executable, "-c", HARNESS, json.dumps(job)], env=env,
+                          capture_output=True, text=True, timeout=600)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT")]
     assert proc.returncode == 0 and lines, proc.stderr[-3000:]
     return json.loads(lines[-1][len("RESULT"):])
 
 
+@pytest.fixture(scope="module")
+def simulated():
+    """Every simulated check of this file, in one subprocess (the simulator starts once)."""
+    return simulate({"cases": CASES, "ensembles": True, "safety": True,
+                     "sorts": {"shape": [16, 4, 16], "names": SORTS, "scale": 1}})
+
+
 @pytest.mark.parametrize("name", CASES)
 def test_simulated_run_matches_reference(simulated, name):
     kw, steps, precision = CASES[name]
-    res = simulated[name]
+    res = simulated["cases"][name]
     # float64: the same formulas in the same order, so rounding alone (a few ulp per step);
     # float32: single-precision rounding of positions ~5 and headings ~1
     tol_h, tol_p = (1e-12, 1e-12) if precision == "float64" else (2e-5, 2e-5)
@@ -112,7 +222,56 @@ def test_simulated_run_matches_reference(simulated, name):
 
 
 def test_simulated_clustered_run_is_deterministic(simulated):
-    assert simulated["2d-clustered"]["repeat"]
+    assert simulated["cases"]["2d-clustered"]["repeat"]
+
+
+@pytest.mark.parametrize("name", ["2d", "3d-topological-float32"])
+def test_simulated_ensemble_replicas_equal_single_runs(simulated, name):
+    """Each replica (its own seed, noise, alignment, speed, speed rule, delay) gives bit
+    for bit what its model gives alone: polar order, state and delay memory."""
+    res = simulated["ensembles"][name]
+    assert all(res["phi"]) and all(res["state"]) and all(res["memory"])
+
+
+@pytest.mark.parametrize("name", ["2d", "3d-topological-float32"])
+def test_simulated_replica_checkpoint_continues_alone(simulated, name):
+    """A replica's checkpoint, loaded by Simulation.load_checkpoint on the cuda backend
+    and run on, takes exactly the steps the ensemble takes in float64. In float32 the
+    checkpoint holds the state as ``state`` gives it (float64, headings renormalised), so
+    the continued run agrees to float32 rounding only."""
+    res = simulated["ensembles"][name]
+    assert res["resumed_backend"] == "cuda"
+    if name.endswith("float32"):
+        assert res["resumed_dh"] < 1e-5
+    else:
+        assert res["resumed"]
+
+
+@pytest.mark.parametrize("name", ["metric", "topological-float32"])
+def test_simulated_broken_coordinates_stay_in_bounds(simulated, name):
+    """NaN, infinite and 1e300 coordinates run without an out-of-bounds access (the
+    simulator raises on an index past the end, and the harness on a negative one) and leave every other particle the reference's step; a NaN
+    heading on top runs three steps too."""
+    res = simulated["safety"][name]
+    tol = 1e-12 if name == "metric" else 2e-5
+    assert res["dh"] < tol and res["dp"] < tol
+    assert res["step"] == 3 and res["nan_heading"]
+
+
+@pytest.mark.parametrize("name", SORTS)
+def test_simulated_radix_sort_orders_by_cell_then_input(simulated, name):
+    """The sort alone: records end up sorted by cell, stably, however crowded the cells
+    (up to three tiles of 256 and three passes of 4 bits in the simulator's shape)."""
+    assert simulated["sorts"][name]
+
+
+@pytest.mark.slow
+def test_simulated_radix_sort_in_the_gpu_shape():
+    """The sort in the launch shape of a real GPU (256 threads, 8-bit digits, tiles of
+    2048): 2000 records in two tiles, two passes, 1400 of them in one cell (about 20 s
+    under the simulator)."""
+    res = simulate({"sorts": {"shape": [256, 8, 8], "names": ["three-crowded-cells"], "scale": 4}})
+    assert res["sorts"] == {"three-crowded-cells": True}
 
 
 def test_precision_is_validated():
@@ -203,3 +362,71 @@ def test_device_float32_throughput():
     backend.advance(50)
     rate = 50 * model.n / (time.perf_counter() - t0)
     assert rate > 1e8
+
+
+@pytest.mark.gpu
+@gpu
+@pytest.mark.parametrize("kw", [dict(), dict(delay=3), dict(dim=3, neighbours="topological", k=7)])
+def test_device_graphs_equal_host_launches(kw):
+    """Replaying the captured CUDA graph takes bit for bit the steps of host launches
+    (more steps than the device's polar-order table holds, so it wraps)."""
+    from flocking.backends.cuda import CUDABackend
+
+    model = flocking.Model(**{"n": 20_000, "density": 2.0, "noise": 1.0, "seed": 5, **kw})
+    state = flocking.State.random(model)
+    a, b = CUDABackend(model, state), CUDABackend(model, state, graphs=False)
+    steps = a._engine.rows + 7
+    assert (a.advance(steps) == b.advance(steps)).all()
+    assert a._engine._graph is not None, "no CUDA graph was captured on this device"
+    assert (a.state.headings == b.state.headings).all() and (a.state.positions == b.state.positions).all()
+
+
+@pytest.mark.gpu
+@gpu
+def test_device_radix_sort_of_crowded_cells():
+    """A million records, half of them in one cell, a fifth in three others: sorted
+    stably by cell (many tiles, three passes)."""
+    from flocking.backends.cuda import radix_sort
+
+    rng = np.random.default_rng(2)
+    m = 1_000_000
+    keys = np.where(rng.random(m) < 0.5, 12345, rng.integers(0, 2**20, m))
+    keys[rng.random(m) < 0.2] = rng.choice([7, 99, 2**20 - 1])
+    rec = (keys.astype(np.uint64) << np.uint64(32)) | rng.permutation(m).astype(np.uint64)
+    assert (radix_sort(rec, 20) == rec[np.argsort(rec >> np.uint64(32), kind="stable")]).all()
+
+
+@pytest.mark.gpu
+@gpu
+def test_device_ensemble_replicas_equal_single_runs():
+    from flocking.backends.cuda import CUDABackend
+
+    base = flocking.Model(n=1024, density=2.0, noise=1.0)
+    models = [base.replace(seed=s, noise=0.5 + s, delay=s % 3, alignment=1.0 - 0.1 * s) for s in range(5)]
+    ens = flocking.Ensemble(models, precision="float32")
+    phi = ens.advance(40)
+    for r, model in enumerate(models):
+        alone = CUDABackend(model, flocking.State.random(model), precision="float32")
+        assert (alone.advance(40) == phi[r]).all()
+        assert (alone.state.headings == ens.states[r].headings).all()
+
+
+@pytest.mark.gpu
+@gpu
+def test_device_sort_costs_the_same_however_crowded():
+    """Sorting 4e6 records all in one cell takes no longer than sorting them spread over
+    2**21 cells (within 1.5x; the per-cell insertion sort it replaced was quadratic in
+    the crowding)."""
+    from flocking.backends.cuda import radix_sort
+
+    rng = np.random.default_rng(3)
+    m = 4_000_000
+    slots = rng.permutation(m).astype(np.uint64)
+    times = []
+    for keys in (rng.integers(0, 2**21, m), np.full(m, 2**20)):
+        rec = (keys.astype(np.uint64) << np.uint64(32)) | slots
+        radix_sort(rec, 21)  # compile
+        t0 = time.perf_counter()
+        radix_sort(rec, 21)
+        times.append(time.perf_counter() - t0)
+    assert times[1] < 1.5 * times[0]

@@ -19,6 +19,7 @@ if "NUMBA_SLP_VECTORIZE" not in os.environ:
     if "numba" in sys.modules:  # imported before us: make numba read its settings again
         sys.modules["numba"].config.reload_config()
 
+from .ensemble import Ensemble  # noqa: E402
 from .model import Model, ParameterError  # noqa: E402
 from .simulation import NonFiniteError, Simulation  # noqa: E402
 from .state import State  # noqa: E402

@@ -1,4 +1,4 @@
-"""CUDA kernels of the GPU backend (numba.cuda), one thread per particle or per cell.
+"""CUDA kernels of the GPU backend (numba.cuda), for one system or an ensemble of them.
 
 The per-particle arithmetic is :mod:`flocking.backends.kernels` (``update_2d``,
 ``update_3d``, ``wrap``, ``minimum_image``) transcribed line by line, in the same order of
@@ -8,26 +8,41 @@ rounding. The arithmetic is written once over a scalar type ``real`` (``np.float
 ``np.float32``): every constant is a ``real``, so float32 kernels never silently promote
 to float64. Only the polar-order sums are always accumulated in float64.
 
-:func:`build` compiles the kernels for one ``(precision, dim, k, block)``; ``k = 0``
-means metric neighbours. Kernels, in the order of a step:
+Layout. ``R`` replicas of ``N`` particles each (``R = 1`` for one system) share every
+array: replica ``r`` owns the slots ``[r N, (r + 1) N)``, kept in the order (cell, id),
+and the cells ``[r C, (r + 1) C)`` of the cell starts. A particle's *global id* is
+``r N + id``. Launches that work per particle use blocks aligned to replicas (block ``b``
+is replica ``b // QB``, ``QB = ceil(N / BLOCK)``), so sums per block are the same whether
+a system runs alone or in an ensemble.
+
+Kernels, in the order of a step (every argument is a device array or a flag fixed for
+the run, so the same launches repeat every step and can be captured in a CUDA graph;
+the step number lives on the device in ``clock[0]``):
 
 ``step``
     neighbour sums (row-contiguous cell ranges, or a ring search for the k nearest),
-    delay ring, new heading and position into ``new_*`` (same slots), each particle's
-    new cell, and a histogram of cells by atomic increments;
-``scan`` / ``add``
-    exclusive prefix sum of the histogram into the cell starts (block scans, then the
-    block totals, recursively);
-``scatter`` / ``cell_sort``
-    each particle into its cell's range by an atomic decrement, then each cell's range
-    sorted by particle id: the order (cell, then id) is a pure function of the state (the
-    atomics leave any order), so it depends neither on thread scheduling nor on restarts;
+    delay ring, new heading and position into ``new_*`` (same slot), and the sort record
+    ``rec[global id] = (new cell << 32) | slot``: a scatter by id, so that ``rec`` is in
+    id order;
+``digits``
+    histograms of every radix digit of the cells in ``rec`` (all passes at once);
+``scatter``
+    one pass of a stable least-significant-digit radix sort: each block ranks one tile
+    stably in shared memory, finds where its digits go from the tiles before it
+    (decoupled look-back, no extra launch), and writes out. Input in id order, stable
+    passes: the result is sorted by (cell, id), a pure function of the state, in
+    ``O(N)`` work whatever the number of particles in a cell;
 ``gather``
-    the particle arrays into cell order, with each block's heading sum;
-``reduce``
-    the block sums, in a fixed order, into one row of the polar-order table.
+    the particle arrays into the new order (each slot reads the slot it came from), the
+    cell starts (a binary search per cell in the sorted cells), and each block's heading
+    sum (float64);
+``finish``
+    per replica, the block sums in a fixed order into one row of the polar-order table;
+    resets the sort's counters.
 
-There is no per-cell capacity: a cell can hold every particle.
+Safety: cells are clamped (:func:`cell_of`), ranges come from the cell starts, the sort
+never trusts its input beyond the number of particles: no kernel reads or writes out of
+bounds, whatever the coordinates (NaN, infinite, 1e300).
 """
 
 from __future__ import annotations
@@ -46,6 +61,17 @@ _S30, _S27, _S31, _S11 = rng._S30, rng._S27, rng._S31, rng._S11
 _INV53 = rng._INV53
 _NOISE0 = np.uint64(rng.NOISE)
 _NOISE1 = np.uint64(rng.NOISE + 1)
+
+#: ``geom``, the real parameters shared by every replica, in this order
+GEOM = ("inv0", "inv1", "inv2", "l0", "l1", "l2", "r2", "width", "dt")
+#: ``ints``, the integer parameters (flags as 0/1)
+INTS = ("nc0", "nc1", "nc2", "n", "cells", "replicas", "vectorial", "backward", "speeds", "rows")
+#: ``rp[r]``, the real parameters of one replica
+REPLICA = ("eta", "epsilon", "v0")
+#: the sort record of a slot no particle fills: sorts after every real one
+SENTINEL = np.uint64(0xFFFFFFFFFFFFFFFF)
+_LOW = np.uint64(0xFFFFFFFF)
+_KEY = np.uint64(32)
 
 
 @cuda.jit(device=True)
@@ -66,17 +92,55 @@ def uniform(seed, step, particle, counter):
     return (h >> _S11) * _INV53
 
 
+def passes(key_bits: int, bits: int) -> int:
+    """Radix passes over keys of ``key_bits`` bits, ``bits`` a pass (at least one).
+
+    >>> passes(19, 8), passes(1, 8), passes(24, 4)
+    (3, 1, 6)
+    """
+    return max(1, -(-key_bits // bits))
+
+
 @functools.lru_cache(maxsize=None)
-def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace:
+def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -> types.SimpleNamespace:
     """The kernels for one precision (``"float64"``/``"float32"``), dimension, ``k``
-    (0: metric) and threads per block (a power of two)."""
+    (0: metric), threads per block (a power of two), radix ``bits`` a pass (at most
+    ``log2(block)``, so that each digit has a thread) and sort items a thread."""
     real = np.float64 if precision == "float64" else np.float32
     ZERO, ONE, HALF, TWO, FOUR = real(0.0), real(1.0), real(0.5), real(2.0), real(4.0)
     TWO_PI, TINY, NEAR_X = real(2.0 * math.pi), real(1e-12), real(0.9)
+    INF = real(np.inf)
     DIM, K, KA = dim, k, max(k, 1)
     BLOCK = block
+    BITS, DIGITS = bits, 1 << bits
+    if DIGITS > BLOCK:
+        raise ValueError("build: 2**bits must not exceed block")
+    if bits % 2:
+        raise ValueError("build: bits must be even")
+    # a tile is ranked in two halves of the digit (keys -> other -> keys), with a counter
+    # per (half-digit, thread): 16 x BLOCK for 8-bit digits
+    SUB = bits // 2
+    SUBD = 1 << SUB
+    ITEMS, TILE = items, block * items
+    PMAX = passes(31, bits)
+    HSIZE, CSIZE = PMAX * DIGITS, SUBD * BLOCK  # shared array sizes must be constants
+    MASK = np.uint64(DIGITS - 1)
+    SUBMASK = np.uint64(SUBD - 1)
+    # sub-digit counters: a tile holds at most 32767 items, so int16 counts suffice
+    CTYPE = np.int16 if TILE < 2**15 else np.int32
 
     # -- per-particle arithmetic (kernels.py, transcribed) ---------------------------
+
+    @cuda.jit(device=True)
+    def lesser(a, b):
+        """``min(a, b)``, as Python's; numba.cuda's builtin ``min`` and ``max`` do not
+        compile everywhere (numba 0.68's own numba.cuda fails on them)."""
+        return b if b < a else a
+
+    @cuda.jit(device=True)
+    def greater(a, b):
+        """``max(a, b)``, as Python's: ``a`` unless ``b`` is larger."""
+        return b if b > a else a
 
     @cuda.jit(device=True)
     def minimum_image(dx, length, half):
@@ -88,6 +152,8 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
 
     @cuda.jit(device=True)
     def wrap(x, length):
+        if not abs(x) < INF:  # NaN or infinite (a broken state): left as it is
+            return x
         x = x - length * real(math.floor(x / length))
         if x >= length:
             x -= length
@@ -95,10 +161,14 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
 
     @cuda.jit(device=True)
     def cell_of(x, inv, nc):
-        c = int(x * inv)
-        if c >= nc:
-            c = nc - 1
-        return c
+        """The cell of coordinate ``x``, always in ``[0, nc)``: NaN, negative or infinite
+        coordinates (a broken state) land in a border cell instead of out of bounds."""
+        f = x * inv
+        if f >= ZERO:  # false for NaN
+            if f < real(nc):
+                return int(f)
+            return nc - 1
+        return 0
 
     @cuda.jit(device=True)
     def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid):
@@ -131,7 +201,7 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
         z1 = real(uniform(seed, step, pid, _NOISE1))
         if vectorial:
             z = TWO * z0 - ONE
-            rho = math.sqrt(max(ZERO, ONE - z * z))
+            rho = math.sqrt(greater(ZERO, ONE - z * z))
             angle = TWO_PI * z1
             sx = sx + eta * count * (rho * math.cos(angle))
             sy = sy + eta * count * (rho * math.sin(angle))
@@ -159,7 +229,7 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
         if not vectorial:
             sin_q = math.sin(eta / FOUR)
             cos_b = ONE - z0 * (TWO * (sin_q * sin_q))
-            sin_b = math.sqrt(max(ZERO, ONE - cos_b * cos_b))
+            sin_b = math.sqrt(greater(ZERO, ONE - cos_b * cos_b))
             phi = TWO_PI * z1
             if abs(wx) < NEAR_X:
                 ax, ay = ONE, ZERO
@@ -205,7 +275,9 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
         return g, ZERO
 
     @cuda.jit(device=True)
-    def metric_sums(i, pos, head, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2, r2):
+    def metric_sums(i, cb, pos, head, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2, r2):
+        """Heading sum and number of the others within R of slot ``i``; ``cb`` is the
+        replica's first cell."""
         h0, h1, h2 = l0 / TWO, l1 / TWO, l2 / TWO
         xi, yi = pos[0, i], pos[1, i]
         zi = pos[2, i] if DIM == 3 else ZERO
@@ -214,12 +286,12 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
         a0, a1, sha, b0, b1, shb = x_ranges(cx, nc0, l0)
         sx, sy, sz = ZERO, ZERO, ZERO
         count = 0
-        nz = min(nc2, 3) if DIM == 3 else 1
+        nz = lesser(nc2, 3) if DIM == 3 else 1
         for oz in range(nz):
             gz, shz = row_of(cz, oz, nc2, l2) if DIM == 3 else (0, ZERO)
-            for oy in range(min(nc1, 3)):
+            for oy in range(lesser(nc1, 3)):
                 gy, shy = row_of(cy, oy, nc1, l1)
-                row = (gz * nc1 + gy) * nc0
+                row = cb + (gz * nc1 + gy) * nc0
                 for run in range(2):
                     if run == 0:
                         lo, hi, shx = start[row + a0], start[row + a1], sha
@@ -252,62 +324,72 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
         return sx, sy, sz, count
 
     @cuda.jit(device=True)
-    def topological(i, pos, ids, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2, width,
-                    best_d2, best_id, best_slot):
-        """The K nearest others of slot ``i`` into ``best_slot`` (as the CPU backend:
-        rings of cells outward until the K-th distance is inside the searched region)."""
+    def better(d2, j, bd, bs, q, ids):
+        """Whether candidate (``d2``, slot ``j``) ranks before entry ``q`` of the k best:
+        nearer, or as near with the lower id (an empty entry has ``bs[q] < 0``)."""
+        if d2 < bd[q]:
+            return True
+        if d2 == bd[q] and j >= 0:
+            return bs[q] < 0 or ids[j] < ids[bs[q]]
+        return False
+
+    @cuda.jit(device=True)
+    def topological(i, cb, pos, ids, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2, width, bd, bs):
+        """The K nearest others of slot ``i`` into ``bd``/``bs`` (distance^2, slot),
+        nearest first, ties to the lower id; rings of cells outward until the K-th
+        distance is inside the searched region (as the CPU backend). Every index into
+        ``bd``/``bs`` is a loop counter over ``range(K)``, which the compiler unrolls, so
+        the K best live in registers. A NaN distance is never a candidate."""
         h0, h1, h2 = l0 / TWO, l1 / TWO, l2 / TWO
-        c0, c1 = cell_of(pos[0, i], inv0, nc0), cell_of(pos[1, i], inv1, nc1)
-        c2 = cell_of(pos[2, i], inv2, nc2) if DIM == 3 else 0
+        xi, yi = pos[0, i], pos[1, i]
+        zi = pos[2, i] if DIM == 3 else ZERO
+        c0, c1 = cell_of(xi, inv0, nc0), cell_of(yi, inv1, nc1)
+        c2 = cell_of(zi, inv2, nc2) if DIM == 3 else 0
         lo0, lo1 = (nc0 - 1) // 2, (nc1 - 1) // 2
         hi0, hi1 = nc0 - 1 - lo0, nc1 - 1 - lo1
         lo2 = (nc2 - 1) // 2 if DIM == 3 else 0
         hi2 = nc2 - 1 - lo2 if DIM == 3 else 0
-        rmax = max(max(lo0, hi0), max(max(lo1, hi1), max(lo2, hi2)))
+        rmax = greater(greater(lo0, hi0), greater(greater(lo1, hi1), greater(lo2, hi2)))
+        for q in range(K):
+            bd[q] = INF
+            bs[q] = -1
         found = 0
         r = 0
         while True:
-            for o0 in range(-min(r, lo0), min(r, hi0) + 1):
-                for o1 in range(-min(r, lo1), min(r, hi1) + 1):
-                    for o2 in range(-min(r, lo2), min(r, hi2) + 1):
-                        if max(abs(o0), max(abs(o1), abs(o2))) != r:
+            for o0 in range(-lesser(r, lo0), lesser(r, hi0) + 1):
+                for o1 in range(-lesser(r, lo1), lesser(r, hi1) + 1):
+                    for o2 in range(-lesser(r, lo2), lesser(r, hi2) + 1):
+                        if greater(abs(o0), greater(abs(o1), abs(o2))) != r:
                             continue
                         g0 = (c0 + o0) % nc0
                         g1 = (c1 + o1) % nc1
                         if DIM == 2:
-                            c = g1 * nc0 + g0
+                            c = cb + g1 * nc0 + g0
                         else:
-                            c = (((c2 + o2) % nc2) * nc1 + g1) * nc0 + g0
+                            c = cb + (((c2 + o2) % nc2) * nc1 + g1) * nc0 + g0
                         for j in range(start[c], start[c + 1]):
                             if j == i:
                                 continue
-                            dx = minimum_image(pos[0, j] - pos[0, i], l0, h0)
+                            dx = minimum_image(pos[0, j] - xi, l0, h0)
                             d2 = dx * dx
-                            dx = minimum_image(pos[1, j] - pos[1, i], l1, h1)
+                            dx = minimum_image(pos[1, j] - yi, l1, h1)
                             d2 += dx * dx
                             if DIM == 3:
-                                dx = minimum_image(pos[2, j] - pos[2, i], l2, h2)
+                                dx = minimum_image(pos[2, j] - zi, l2, h2)
                                 d2 += dx * dx
-                            jid = ids[j]
-                            if found == K and (d2 > best_d2[K - 1]
-                                               or (d2 == best_d2[K - 1] and jid > best_id[K - 1])):
+                            if not better(d2, j, bd, bs, K - 1, ids):
                                 continue
-                            p = found if found < K else K - 1
-                            while p > 0 and (best_d2[p - 1] > d2
-                                             or (best_d2[p - 1] == d2 and best_id[p - 1] > jid)):
-                                best_d2[p] = best_d2[p - 1]
-                                best_id[p] = best_id[p - 1]
-                                best_slot[p] = best_slot[p - 1]
-                                p -= 1
-                            best_d2[p] = d2
-                            best_id[p] = jid
-                            best_slot[p] = j
+                            cd, cs = d2, j
+                            for q in range(K):  # one bubble pass: static indices only
+                                if better(cd, cs, bd, bs, q, ids):
+                                    bd[q], cd = cd, bd[q]
+                                    bs[q], cs = cs, bs[q]
                             if found < K:
                                 found += 1
             if r >= rmax:
                 break
             reach = real(r) * width
-            if found == K and best_d2[K - 1] < reach * reach:
+            if found == K and bd[K - 1] < reach * reach:
                 break
             r += 1
         return found
@@ -315,49 +397,67 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
     # -- one step --------------------------------------------------------------------
 
     @cuda.jit
-    def step(pos, head, spd, ids, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2,
-             r2, width, eta, vectorial, epsilon, delay, dt, backward, seed, t, ring, slot,
-             new_pos, new_head, cell, counts):
-        """One step of slot ``i`` into ``new_*[:, i]``; its new cell into ``cell[i]`` and
-        the cell histogram ``counts``. ``ring[slot, :, id]`` (delay > 0) holds the
-        neighbour sums of ``delay`` steps ago and receives today's."""
-        i = cuda.grid(1)
-        if i >= pos.shape[1]:
+    def step(pos, head, spd, ids, start, geom, ints, rp, rtau, rseed, clock, ring, prime,
+             new_pos, new_head, new_ids, new_spd, rec):
+        """One step of a slot into ``new_*[:, slot]`` and its sort record into
+        ``rec[global id]``. ``ring[global id, t % tau]`` (tau > 0) holds the neighbour
+        sums of tau steps ago and receives today's. With ``prime``, only fill every ring
+        slot with today's sums (the initial state stands in for the past)."""
+        n = ints[3]
+        qb = (n + BLOCK - 1) // BLOCK
+        r = cuda.blockIdx.x // qb
+        local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
+        if local >= n:
             return
+        i = r * n + local
+        nc0, nc1, nc2, ncells = ints[0], ints[1], ints[2], ints[4]
+        inv0, inv1, inv2, l0, l1, l2 = geom[0], geom[1], geom[2], geom[3], geom[4], geom[5]
+        cb = r * ncells
         if K == 0:
-            sx, sy, sz, count = metric_sums(i, pos, head, start, nc0, nc1, nc2,
-                                            inv0, inv1, inv2, l0, l1, l2, r2)
+            sx, sy, sz, count = metric_sums(i, cb, pos, head, start, nc0, nc1, nc2,
+                                            inv0, inv1, inv2, l0, l1, l2, geom[6])
         else:
-            best_d2 = cuda.local.array(KA, real)
-            best_id = cuda.local.array(KA, np.int64)
-            best_slot = cuda.local.array(KA, np.int64)
-            count = topological(i, pos, ids, start, nc0, nc1, nc2, inv0, inv1, inv2,
-                                l0, l1, l2, width, best_d2, best_id, best_slot)
+            bd = cuda.local.array(KA, real)
+            bs = cuda.local.array(KA, np.int64)
+            count = topological(i, cb, pos, ids, start, nc0, nc1, nc2, inv0, inv1, inv2,
+                                l0, l1, l2, geom[7], bd, bs)
             sx, sy, sz = ZERO, ZERO, ZERO
-            for q in range(count):
-                j = best_slot[q]
-                sx += head[0, j]
-                sy += head[1, j]
-                if DIM == 3:
-                    sz += head[2, j]
+            for q in range(K):
+                if q < count:
+                    j = bs[q]
+                    sx += head[0, j]
+                    sy += head[1, j]
+                    if DIM == 3:
+                        sz += head[2, j]
         pid = ids[i]
+        gid = r * n + pid
         total = ONE + real(count)
-        if delay > 0:
-            osx, osy, ototal = ring[slot, 0, pid], ring[slot, 1, pid], ring[slot, DIM, pid]
-            ring[slot, 0, pid], ring[slot, 1, pid], ring[slot, DIM, pid] = sx, sy, total
-            osz = ZERO
-            if DIM == 3:
-                osz = ring[slot, 2, pid]
-                ring[slot, 2, pid] = sz
+        t = clock[0]
+        tau = rtau[r]
+        if prime:
+            for s in range(tau):
+                ring[gid, s, 0], ring[gid, s, 1], ring[gid, s, 3] = sx, sy, total
+                ring[gid, s, 2] = sz
+            return
+        if tau > 0:
+            s = t % tau
+            osx, osy, osz, ototal = ring[gid, s, 0], ring[gid, s, 1], ring[gid, s, 2], ring[gid, s, 3]
+            ring[gid, s, 0], ring[gid, s, 1], ring[gid, s, 2], ring[gid, s, 3] = sx, sy, sz, total
             sx, sy, sz, total = osx, osy, osz, ototal
-        useed, ustep, upid = np.uint64(seed), np.uint64(t), np.uint64(pid)
-        ds = spd[i] * dt
+        eta, epsilon = rp[r, 0], rp[r, 1]
+        vectorial = ints[6] != 0
+        useed, ustep, upid = rseed[r], np.uint64(t), np.uint64(pid)
+        if ints[8] != 0:
+            ds = spd[i] * geom[8]
+            new_spd[i] = spd[i]
+        else:
+            ds = rp[r, 2] * geom[8]
         if DIM == 2:
             ux, uy = head[0, i], head[1, i]
             wx, wy = update_2d(ux, uy, ux + sx, uy + sy, total, epsilon, eta, vectorial,
                                useed, ustep, upid)
             new_head[0, i], new_head[1, i] = wx, wy
-            if not backward:
+            if ints[7] == 0:
                 wx, wy = ux, uy
             x = wrap(pos[0, i] + ds * wx, l0)
             y = wrap(pos[1, i] + ds * wy, l1)
@@ -368,84 +468,185 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
             wx, wy, wz = update_3d(ux, uy, uz, ux + sx, uy + sy, uz + sz, total, epsilon, eta,
                                    vectorial, useed, ustep, upid)
             new_head[0, i], new_head[1, i], new_head[2, i] = wx, wy, wz
-            if not backward:
+            if ints[7] == 0:
                 wx, wy, wz = ux, uy, uz
             x = wrap(pos[0, i] + ds * wx, l0)
             y = wrap(pos[1, i] + ds * wy, l1)
             z = wrap(pos[2, i] + ds * wz, l2)
             new_pos[0, i], new_pos[1, i], new_pos[2, i] = x, y, z
             c = (cell_of(z, inv2, nc2) * nc1 + cell_of(y, inv1, nc1)) * nc0 + cell_of(x, inv0, nc0)
-        cell[i] = c
-        cuda.atomic.add(counts, c, 1)
+        new_ids[i] = pid
+        rec[gid] = (np.uint64(cb + c) << _KEY) | np.uint64(i)
 
     @cuda.jit
-    def cells(pos, nc0, nc1, nc2, inv0, inv1, inv2, cell, counts):
-        """Cell and histogram of unsorted positions (the initial state)."""
-        i = cuda.grid(1)
-        if i >= pos.shape[1]:
+    def cells(pos, geom, ints, rec):
+        """Sort records of positions in global-id order (a state being loaded)."""
+        n = ints[3]
+        qb = (n + BLOCK - 1) // BLOCK
+        r = cuda.blockIdx.x // qb
+        local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
+        if local >= n:
             return
-        c = cell_of(pos[1, i], inv1, nc1) * nc0 + cell_of(pos[0, i], inv0, nc0)
+        i = r * n + local
+        nc0, nc1, nc2 = ints[0], ints[1], ints[2]
+        c = cell_of(pos[1, i], geom[1], nc1) * nc0 + cell_of(pos[0, i], geom[0], nc0)
         if DIM == 3:
-            c += cell_of(pos[2, i], inv2, nc2) * nc1 * nc0
-        cell[i] = c
-        cuda.atomic.add(counts, c, 1)
+            c += cell_of(pos[2, i], geom[2], nc2) * nc1 * nc0
+        rec[i] = (np.uint64(r * ints[4] + c) << _KEY) | np.uint64(i)
 
-    # -- stable counting sort --------------------------------------------------------
+    # -- stable radix sort of the records by cell -------------------------------------
 
-    @cuda.jit
-    def scan(data, out, sums):
-        """Exclusive prefix sum within each block of ``data`` into ``out`` (may be
-        ``data``); each block's total into ``sums``."""
-        buf = cuda.shared.array(BLOCK, np.int64)
-        i = cuda.grid(1)
-        tid = cuda.threadIdx.x
-        v = data[i] if i < data.shape[0] else 0
-        buf[tid] = v
+    @cuda.jit(device=True)
+    def digit_of(v, shift):
+        return np.int64((v >> shift) & MASK)
+
+    @cuda.jit(device=True)
+    def block_scan(part, more, tid):
+        """Inclusive prefix sums of ``part[:BLOCK]`` and ``more[:BLOCK]`` in place, side
+        by side; every thread of the block calls it after writing its entries
+        (Hillis-Steele: log2(BLOCK) rounds)."""
         cuda.syncthreads()
-        offset = 1
-        while offset < BLOCK:
-            add = buf[tid - offset] if tid >= offset else 0
+        off = 1
+        while off < BLOCK:
+            v, w = 0, 0
+            if tid >= off:
+                v, w = part[tid - off], more[tid - off]
             cuda.syncthreads()
-            buf[tid] += add
+            part[tid] += v
+            more[tid] += w
             cuda.syncthreads()
-            offset *= 2
-        if i < data.shape[0]:
-            out[i] = buf[tid] - v
-        if tid == BLOCK - 1:
-            sums[cuda.blockIdx.x] = buf[tid]
+            off *= 2
 
     @cuda.jit
-    def add(out, sums):
-        """Add each block's offset (the scanned block totals) to its part of ``out``."""
-        i = cuda.grid(1)
-        if i < out.shape[0]:
-            out[i] += sums[cuda.blockIdx.x]
+    def digits(rec, hist, m, npass, clock, tick):
+        """Count every pass's digits of ``rec[:m]`` into ``hist[p * DIGITS + digit]``
+        (zero on entry); with ``tick``, the step counter moves on (the step kernel,
+        which reads it, is done)."""
+        h = cuda.shared.array(HSIZE, np.int32)
+        tid = cuda.threadIdx.x
+        if tick and cuda.blockIdx.x == 0 and tid == 0:
+            clock[0] += 1
+        for e in range(tid, HSIZE, BLOCK):
+            h[e] = 0
+        cuda.syncthreads()
+        first = cuda.blockIdx.x * TILE
+        for q in range(ITEMS):
+            g = first + q * BLOCK + tid
+            if g < m:
+                v = rec[g]
+                for p in range(npass):
+                    cuda.atomic.add(h, p * DIGITS + digit_of(v, _KEY + np.uint64(p * BITS)), 1)
+        cuda.syncthreads()
+        for e in range(tid, npass * DIGITS, BLOCK):
+            if h[e] != 0:
+                cuda.atomic.add(hist, e, h[e])
 
     @cuda.jit
-    def scatter(cell, start, counts, order):
-        """Slot of each particle inside its cell's range; ``counts`` goes back to zero."""
-        i = cuda.grid(1)
-        if i >= cell.shape[0]:
-            return
-        c = cell[i]
-        order[start[c] + cuda.atomic.add(counts, c, -1) - 1] = i
+    def scatter(src, dst, m, p, hist, status, tiles, clock):
+        """Pass ``p`` of the radix sort, ``src[:m]`` into ``dst``: stable by the digit.
 
-    @cuda.jit
-    def cell_sort(start, order, ids, ncells):
-        """Sort each cell's range by particle id (insertion sort: cells are small, and a
-        crowded cell only costs time, never correctness)."""
-        c = cuda.grid(1)
-        if c >= ncells:
-            return
-        lo, hi = start[c], start[c + 1]
-        for a in range(lo + 1, hi):
-            v = order[a]
-            key = ids[v]
-            b = a
-            while b > lo and ids[order[b - 1]] > key:
-                order[b] = order[b - 1]
-                b -= 1
-            order[b] = v
+        Tiles are handed out in launch order by ``tiles[p]``. A block loads its tile and
+        sorts it stably by the digit in shared memory, half a digit at a time: each thread
+        counts its own run of items into its column of ``cnt``, a prefix sum over
+        (sub-digit, thread) gives every item its place. It then learns, per digit, how
+        many items the tiles before it hold (decoupled look-back: each tile publishes its
+        count, then its inclusive prefix, in ``status``, tagged with the sort and pass so
+        that nothing needs clearing) and writes each digit's run to ``digit start + items
+        of earlier tiles + rank in the tile``."""
+        keys = cuda.shared.array(TILE, np.uint64)
+        other = cuda.shared.array(TILE, np.uint64)
+        cnt = cuda.shared.array(CSIZE, CTYPE)
+        part = cuda.shared.array(BLOCK, np.int32)
+        more = cuda.shared.array(BLOCK, np.int32)
+        tcount = cuda.shared.array(DIGITS, np.int32)
+        tstart = cuda.shared.array(DIGITS, np.int32)
+        base = cuda.shared.array(DIGITS, np.int64)
+        tile_of = cuda.shared.array(1, np.int64)
+        tid = cuda.threadIdx.x
+        if tid == 0:
+            tile_of[0] = cuda.atomic.add(tiles, p, 1)
+        if tid < DIGITS:
+            tcount[tid] = 0
+        for e in range(SUBD):
+            cnt[e * BLOCK + tid] = 0
+        cuda.syncthreads()
+        tile = tile_of[0]
+        shift = _KEY + np.uint64(p * BITS)
+        first = tile * TILE
+        for q in range(ITEMS):
+            g = first + q * BLOCK + tid
+            v = SENTINEL
+            if g < m:
+                v = src[g]
+                cuda.atomic.add(tcount, digit_of(v, shift), 1)
+            keys[q * BLOCK + tid] = v
+        cuda.syncthreads()
+        # stable sort of the tile by the digit, one half at a time (keys -> other -> keys)
+        for sp in range(2):
+            a, b = (keys, other) if sp % 2 == 0 else (other, keys)
+            sub = shift + np.uint64(sp * SUB)
+            for q in range(ITEMS):
+                e = np.int64((a[tid * ITEMS + q] >> sub) & SUBMASK) * BLOCK + tid
+                cnt[e] += 1
+            cuda.syncthreads()
+            # exclusive prefix sum of cnt (sub-digit major): each thread a run of SUBD
+            total = 0
+            for e in range(SUBD):
+                total += cnt[tid * SUBD + e]
+            part[tid] = total
+            more[tid] = 0
+            block_scan(part, more, tid)
+            acc = part[tid] - total
+            for e in range(SUBD):
+                v = cnt[tid * SUBD + e]
+                cnt[tid * SUBD + e] = acc
+                acc += v
+            cuda.syncthreads()
+            for q in range(ITEMS):  # from here on a thread touches its own column only
+                v = a[tid * ITEMS + q]
+                e = np.int64((v >> sub) & SUBMASK) * BLOCK + tid
+                at = cnt[e]
+                cnt[e] = at + 1
+                b[at] = v
+            for e in range(SUBD):
+                cnt[e * BLOCK + tid] = 0
+            cuda.syncthreads()
+        # where each digit starts in the tile, and in the whole output
+        part[tid] = tcount[tid] if tid < DIGITS else 0
+        more[tid] = hist[p * DIGITS + tid] if tid < DIGITS else 0
+        block_scan(part, more, tid)
+        if tid < DIGITS:
+            mine = np.int64(tcount[tid])
+            tstart[tid] = part[tid] - mine
+            # status word: tag (sort and pass, never 0) << 33 | inclusive << 32 | count
+            tag = np.int64(1 + (clock[1] * PMAX + p) % (2**30 - 1))
+            slot = tile * DIGITS + tid
+            before = np.int64(0)
+            if tile == 0:
+                cuda.atomic.exch(status, slot, (tag << 33) | (np.int64(1) << 32) | mine)
+            else:
+                cuda.atomic.exch(status, slot, (tag << 33) | mine)
+                j = tile - 1
+                while j >= 0:
+                    w = cuda.atomic.add(status, j * DIGITS + tid, 0)
+                    if (w >> 33) != tag:
+                        continue  # tile j has not published yet
+                    before += w & 0xFFFFFFFF
+                    if (w >> 32) & 1:
+                        break
+                    j -= 1
+                cuda.atomic.exch(status, slot, (tag << 33) | (np.int64(1) << 32) | (before + mine))
+            base[tid] = np.int64(more[tid]) - hist[p * DIGITS + tid] + before
+        cuda.syncthreads()
+        for q in range(ITEMS):
+            at = q * BLOCK + tid
+            v = keys[at]
+            d = digit_of(v, shift)
+            rank = at - tstart[d]
+            if rank < tcount[d]:
+                dst[base[d] + rank] = v
+
+    # -- back into slots, cell starts, polar order ------------------------------------
 
     @cuda.jit(device=True)
     def block_sum(buf, tid):
@@ -461,42 +662,73 @@ def build(precision: str, dim: int, k: int, block: int) -> types.SimpleNamespace
             stride //= 2
 
     @cuda.jit
-    def gather(order, pos, head, spd, ids, pos2, head2, spd2, ids2, partial):
-        """``x2[:, s] = x[:, order[s]]``; each block's heading sum (float64) into ``partial``."""
+    def gather(srt, new_pos, new_head, new_ids, new_spd, ints, pos, head, ids, spd, start, partial):
+        """Slot ``s`` takes the particle the sort put there (``srt[s]`` holds the slot it
+        came from); each cell's start is found by a binary search in the replica's sorted
+        records; each block's heading sum (float64) goes to ``partial``."""
         buf = cuda.shared.array((DIM, BLOCK), np.float64)
-        s = cuda.grid(1)
+        n, ncells = ints[3], ints[4]
+        qb = (n + BLOCK - 1) // BLOCK
+        r = cuda.blockIdx.x // qb
         tid = cuda.threadIdx.x
+        local = (cuda.blockIdx.x % qb) * BLOCK + tid
         for a in range(DIM):
             buf[a, tid] = 0.0
-        if s < order.shape[0]:
-            i = order[s]
+        if local < n:
+            s = r * n + local
+            o = np.int64(srt[s] & _LOW)
             for a in range(DIM):
-                pos2[a, s] = pos[a, i]
-                head2[a, s] = head[a, i]
-                buf[a, tid] = np.float64(head[a, i])
-            spd2[s] = spd[i]
-            ids2[s] = ids[i]
+                pos[a, s] = new_pos[a, o]
+                head[a, s] = new_head[a, o]
+                buf[a, tid] = np.float64(new_head[a, o])
+            ids[s] = new_ids[o]
+            if ints[8] != 0:
+                spd[s] = new_spd[o]
+        if local < ncells:  # cells never outnumber particles
+            key = np.uint64(r * ncells + local)
+            lo, hi = r * n, r * n + n
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if (srt[mid] >> _KEY) < key:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            start[r * ncells + local] = lo
         block_sum(buf, tid)
         if tid == 0:
             for a in range(DIM):
                 partial[a, cuda.blockIdx.x] = buf[a, 0]
 
     @cuda.jit
-    def reduce(partial, out, row):
-        """One block: ``out[row] = sum of partial`` over blocks, in a fixed order."""
+    def finish(partial, ints, phi, clock, hist, tiles, tick):
+        """Block ``r``: replica ``r``'s block sums, in a fixed order, into row
+        ``clock[0] % rows`` of ``phi`` (with ``tick``). Block 0 also readies the sort's
+        counters for the next sort."""
         buf = cuda.shared.array((DIM, BLOCK), np.float64)
+        n = ints[3]
+        qb = (n + BLOCK - 1) // BLOCK
+        r = cuda.blockIdx.x
         tid = cuda.threadIdx.x
-        for a in range(DIM):
-            acc = 0.0
-            for b in range(tid, partial.shape[1], BLOCK):
-                acc += partial[a, b]
-            buf[a, tid] = acc
-        block_sum(buf, tid)
-        if tid == 0:
+        if r == 0:
+            for e in range(tid, HSIZE, BLOCK):
+                hist[e] = 0
+            if tid < PMAX:
+                tiles[tid] = 0
+            if tid == 0:
+                clock[1] += 1
+        if tick:
             for a in range(DIM):
-                out[row, a] = buf[a, 0]
+                acc = 0.0
+                for b in range(tid, qb, BLOCK):
+                    acc += partial[a, r * qb + b]
+                buf[a, tid] = acc
+            block_sum(buf, tid)
+            if tid == 0:
+                row = clock[0] % ints[9]
+                for a in range(DIM):
+                    phi[r, row, a] = buf[a, 0]
 
     return types.SimpleNamespace(
-        real=real, step=step, cells=cells, scan=scan, add=add, scatter=scatter,
-        cell_sort=cell_sort, gather=gather, reduce=reduce,
+        real=real, step=step, cells=cells, digits=digits, scatter=scatter, gather=gather,
+        finish=finish, bits=BITS, digits_per_pass=DIGITS, tile=TILE, block=BLOCK, max_passes=PMAX,
     )
