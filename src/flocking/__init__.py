@@ -41,7 +41,8 @@ def __getattr__(name: str):
         return getattr(viz, name)
     raise AttributeError(f"module 'flocking' has no attribute {name!r}")
 
+
 __all__ = [
-    "CheckpointWriter", "Frame", "GSDWriter", "Model", "NonFiniteError", "ObservablesWriter", "ParameterError", "Simulation",
-    "State", "Trajectory", "Writer", "animate", "open", "plot_frame", "__version__",
+    "CheckpointWriter", "Ensemble", "Frame", "GSDWriter", "Model", "NonFiniteError", "ObservablesWriter",
+    "ParameterError", "Simulation", "State", "Trajectory", "Writer", "animate", "open", "plot_frame", "__version__",
 ]
