@@ -20,11 +20,13 @@ positive = st.floats(0.05, 6.0)
 def models(draw):
     dim = draw(st.sampled_from([2, 3]))
     noise_type = draw(st.sampled_from(["angular", "vectorial"]))
+    box = tuple(draw(st.lists(st.floats(0.3, 8.0), min_size=dim, max_size=dim)))
+    dt = draw(st.floats(0.01, 3.0))
     return Model(
         dim=dim,
         n=draw(st.integers(1, 60)),
-        box=tuple(draw(st.lists(st.floats(0.3, 8.0), min_size=dim, max_size=dim))),
-        speed=draw(positive),
+        box=box,
+        speed=draw(st.floats(1e-3, min(box) / dt)),  # a step longer than the box is refused
         speeds=draw(st.sampled_from(["constant", "uniform"])),
         neighbours=draw(st.sampled_from(["metric", "topological"])),
         radius=draw(st.floats(0.01, 10.0)),
@@ -33,7 +35,7 @@ def models(draw):
         noise_type=noise_type,
         alignment=draw(st.floats(0.0, 1.0)),
         delay=draw(st.integers(0, 3)),
-        dt=draw(st.floats(0.01, 3.0)),
+        dt=dt,
         update=draw(st.sampled_from(["backward", "forward"])),
         seed=draw(st.integers(0, 2**40)),
     )
