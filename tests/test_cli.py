@@ -1,5 +1,6 @@
 """`flocking run` as a user types it: outputs, conventions, repeatability and every error path."""
 
+import math
 import os
 import signal
 import subprocess
@@ -225,13 +226,17 @@ def test_help_shows_every_default():
     used = RunConfig.from_dict({}).to_dict()  # what a run without options resolves to
     derived = {"n": "density x volume", "density": "2 when needed", "box": "32 when needed",
                "out": "runs/run-NNNN, a new one", "plots": "--plots; with --resume, as the run began",
-               "movie": "--no-movie; with --resume, as the run began", "noise_scale": "radians"}
+               "movie": "--no-movie; with --resume, as the run began", "noise_scale": "radians",
+               "vision": "pi, all around", "field": "none", "boundary": "periodic",
+               "theme": "dark", "dpi": "200", "plot_format": "png"}
+    plain = flocking.Model()  # config.toml leaves out extensions that are off: their defaults are Model's
+    assert plain.vision == math.pi and plain.field is None
     assert used["n"] == 2048 and used["box"] == [32.0, 32.0]  # density 2 x 32 x 32
     checked = set()
     for param in run_command.params:
         if param.name in ("config_file", "resume_dir", "force", "quiet", "show", "help"):
             continue
-        value = used.get(param.name)
+        value = used.get(param.name, getattr(plain, param.name, None))
         shown = derived.get(param.name, f"{value:g}" if isinstance(value, float) else str(value))
         assert param.help.endswith(f"[default: {shown}]"), param.name
         assert " ".join(param.help.split()) in text, param.name

@@ -33,6 +33,7 @@ import numpy as np
 from . import backends
 from .backends.cuda import Engine, check_models, ensemble_key
 from .model import Model, ParameterError
+from .observables import extra_names, extra_observables
 from .simulation import Simulation, _next_due
 from .state import State, frame_arrays
 
@@ -151,8 +152,10 @@ class Ensemble:
                 out[:, step - first:target - first] = phi
                 done = np.arange(step + 1, target + 1)
                 step = target
+                extra = [view.extra_observables(self._singles[view.index].moments)
+                         if self._singles is not None and extra_names(view.model) else None for view in views]
                 for view, w in everyone:
-                    w.observe(done, phi[view.index])
+                    w.observe(done, phi[view.index], extra[view.index])
                     if w.due(step, self.origin, last):
                         w.write(view)
         finally:
@@ -203,6 +206,10 @@ class Replica:
 
     def memory(self) -> dict[str, np.ndarray]:
         return self.ensemble.memory()[self.index]
+
+    def extra_observables(self, moments: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """As :meth:`Simulation.extra_observables`, for this replica."""
+        return extra_observables(self.model, None if moments is not None else self.state.headings, moments)
 
     def frame_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Centred positions and velocities, float32 ``(N, 3)`` in id order (a GSD frame's)."""

@@ -89,3 +89,19 @@ def extra_values(model, sums: np.ndarray) -> np.ndarray:
             m -= 0.5 * np.eye(3)
             out.append(np.linalg.eigvalsh(m)[..., -1])
     return np.stack(out, axis=-1) if out else np.zeros(sums.shape[:-1] + (0,))
+
+
+def extra_observables(model, headings: np.ndarray | None = None, moments: np.ndarray | None = None
+                      ) -> dict[str, np.ndarray]:
+    """The :func:`extra_names` columns by name, from the moment sums of some steps
+    ``(steps, moment_width)`` or from one state's unit ``headings`` (id order).
+
+    >>> from flocking import Model
+    >>> m = Model(n=2, box=4.0, alignment_rule="nematic")
+    >>> extra_observables(m, headings=np.array([[1.0, 0.0], [-1.0, 0.0]]))["nematic_order"].tolist()
+    [1.0]
+    """
+    if moments is None:
+        moments = moment_sums(model, headings)[None]
+    values = extra_values(model, moments)
+    return {name: values[..., i] for i, name in enumerate(extra_names(model))}

@@ -20,7 +20,7 @@ import numpy as np
 from . import backends
 from .files import replace_atomically
 from .model import Model, ParameterError
-from .observables import extra_names, extra_values, moment_sums
+from .observables import extra_names, extra_observables
 from .state import State
 
 #: Polar order is handed to writers at least this often (particle-steps), so that a long
@@ -153,10 +153,7 @@ class Simulation:
         """The observables beyond the polar order (:func:`flocking.observables.extra_names`:
         per-species polar order, nematic order) from the backend's moment sums of some steps,
         or of the current state."""
-        if moments is None:
-            moments = moment_sums(self.model, self.state.headings)[None]
-        values = extra_values(self.model, moments)
-        return {name: values[..., i] for i, name in enumerate(self._extra_names)}
+        return extra_observables(self.model, None if moments is not None else self.state.headings, moments)
 
     def _non_finite(self, step: int, phi: np.ndarray) -> None:
         """Hand writers the finite steps of ``phi`` (which follow ``step``), then stop the run."""

@@ -116,7 +116,7 @@ def written_by_flocking(name: str) -> bool:
     """
     from .analyze import OUTPUTS
 
-    names = set(RUN_FILES) | {stem + ext for stem, _ in OUTPUTS.values() for ext in (".csv", *(f".{e}" for e in PICTURE_FORMATS))}
+    names = set(RUN_FILES) | {stem + ext for stem, *_ in OUTPUTS.values() for ext in (".csv", *(f".{e}" for e in PICTURE_FORMATS))}
     for name_ in names:
         ext = os.path.splitext(name_)[1]
         if re.fullmatch(re.escape(name_) + r"(\.\d+)?\.tmp", name) or name == f".{name_}.part{ext}":
@@ -186,9 +186,9 @@ def default_output_folder() -> str:
               help="movie.mp4 at the end (see flocking animate).  [default: --no-movie; with --resume, as the run "
                    "began]")
 @click.option("--show", is_flag=True, help="A window that shows the flock while it runs.")
-@click.option("--theme", default="dark", show_default=True, help="Pictures and movie: dark or light.")
-@click.option("--dpi", type=click.FLOAT, default=None, help="Pictures: pixels per inch. [default: 200]")
-@click.option("--plot-format", default="png", show_default=True, help="Pictures: png, svg or pdf.")
+@click.option("--theme", default="dark", help="Pictures and movie: dark or light.  [default: dark]")
+@click.option("--dpi", type=click.FLOAT, default=None, help="Pictures: pixels per inch.  [default: 200]")
+@click.option("--plot-format", default="png", help="Pictures: png, svg or pdf.  [default: png]")
 def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, dpi, plot_format, **options):
     """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
 
