@@ -161,6 +161,15 @@ def time_text(frame, dt: float = 1.0, lines: int = 1) -> str:
     return text + ("\n" if lines > 1 else "   ") + fr"$\varphi$ = {frame.polar_order:.3f}"
 
 
+def frame_density(frame, pixels: int) -> DensityField:
+    """The :class:`DensityField` of a 2D frame, its longer side ``pixels`` bins, with its
+    walls, obstacles and species."""
+    box = frame.box_lengths
+    return DensityField(frame.positions, frame.headings, box, grid_shape(box, pixels), walls=frame.walls,
+                        obstacles=obstacle_images(frame.obstacles, box, frame.walls), typeid=frame.typeid,
+                        types=len(frame.types))
+
+
 class FrameArtist:
     """The particles of one frame on a matplotlib axes; :meth:`update` redraws them in place.
 
@@ -277,13 +286,14 @@ class FrameArtist:
             self._artist.set_facecolor(colors)
 
     def density_field(self, frame) -> DensityField:
-        return DensityField(frame.positions, frame.headings, self.box, grid_shape(self.box, self.pixels))
+        return frame_density(frame, self.pixels)
 
     def _density(self, frame) -> None:
         field = self.density_field(frame)
         if self.density_max is None:
             self.density_max = density_scale([field])
-        self._show(density_image(field, self.theme, self.density_max), "bilinear")
+        species = species_colors(len(self.types), self.theme) if self.color == "species" else None
+        self._show(density_image(field, self.theme, self.density_max, species), "bilinear")
 
     def _perspective(self, frame) -> None:
         rgb = perspective_image(frame.points, frame.headings, self.box, self.pixels, self.theme,
@@ -530,7 +540,7 @@ class Scene:
 
     def density_field(self, frame) -> DensityField:
         """The :class:`DensityField` of ``frame`` on this scene's grid."""
-        return DensityField(frame.positions, frame.headings, self.box, grid_shape(self.box, self._args["pixels"]))
+        return frame_density(frame, self._args["pixels"])
 
     def draw(self, frame, azim: float | None = None) -> Scene:
         if self.artist is None:
