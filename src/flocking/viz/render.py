@@ -299,7 +299,7 @@ class FrameArtist:
         rgb = perspective_image(frame.points, frame.headings, self.box, self.pixels, self.theme,
                                 azim=self.azim, elev=self.elev,
                                 length=glyph_length(frame.n, self.box, self.arrow_scale),
-                                colors=self.colors(frame))
+                                colors=self.colors(frame), walls=self.walls, obstacles=self.obstacles)
         self._show(rgb, "antialiased")
         if self._triad is not None:
             self._update_triad()
