@@ -139,7 +139,14 @@ def _extension_parts(m: dict, dim: int) -> list[str]:
         count = len(m["obstacles"])
         parts.append(f"{count} obstacle{'s' * (count > 1)}")
     if len(m.get("species") or ()) > 1:
-        parts.append("species " + ", ".join(str(sp.get("name", "?")) for sp in m["species"]))
+        symbols = {"speed": "$v_0$", "noise": r"$\eta$", "alignment": r"$\varepsilon$", "chirality": r"$\omega$",
+                   "field_strength": "$h$"}
+
+        def one(sp):
+            own = [f"{symbol} = {_g(sp[key])}" for key, symbol in symbols.items() if sp.get(key) is not None]
+            return str(sp.get("name", "?")) + (f" ({', '.join(own)})" if own else "")
+
+        parts.append("species " + ", ".join(one(sp) for sp in m["species"]))
     if m.get("coupling") is not None:
         parts.append("coupled species")
     if m.get("vision") is not None and m["vision"] < np.pi:
@@ -547,6 +554,9 @@ class Scene:
             self.artist = FrameArtist(self.ax, frame, **self._args)
             if self.artist.style == "density":
                 self.set_density_max(self.artist.density_max)
+            if self.time_label is not None and self.artist.walls[1:2] == (True,):  # below the top wall's line
+                width = 0.25 * house.fontsize(self.figure) + 1.5  # points, as the line
+                self.time_label.set_y(0.985 - width / 72 * self.figure.dpi / self.ax.get_window_extent().height)
         else:
             self.artist.update(frame, azim=azim)
         if self.time_label is not None:
