@@ -228,7 +228,7 @@ def test_help_shows_every_default():
                "out": "runs/run-NNNN, a new one", "plots": "--plots; with --resume, as the run began",
                "movie": "--no-movie; with --resume, as the run began", "noise_scale": "radians",
                "vision": "pi, all around", "field": "none", "boundary": "periodic",
-               "theme": "dark", "dpi": "200", "plot_format": "png"}
+               "theme": "dark", "dpi": "200", "plot_format": "png", "color": "auto"}
     plain = flocking.Model()  # config.toml leaves out extensions that are off: their defaults are Model's
     assert plain.vision == math.pi and plain.field is None
     assert used["n"] == 2048 and used["box"] == [32.0, 32.0]  # density 2 x 32 x 32

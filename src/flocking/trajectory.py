@@ -4,6 +4,10 @@ Any GSD file in HOOMD conventions can be read, ours or another program's. A
 :class:`Frame` has a freud-style ``box`` (``[Lx, Ly, Lz, xy, xz, yz]``, ``Lz = 0`` in 2D),
 ``points`` centred in the box (``(N, 3)`` float32, as freud wants), unit ``headings`` and
 ``velocities``; unpacking it gives ``(box, points)``, which every freud compute accepts.
+It also knows its particles' species as GSD types (``typeid`` per particle, ``types``
+their names: one type ``"A"`` when the file has none, as HOOMD, freud and OVITO assume)
+and the run's ``walls`` (per axis) and ``obstacles`` (rows: centre in the frame's centred
+coordinates, then radius), which ``flocking`` writes in frame 0 and every frame carries.
 
 >>> import flocking, tempfile, os
 >>> path = os.path.join(tempfile.mkdtemp(), "t.gsd")
@@ -32,17 +36,38 @@ from .model import Model
 
 #: Name of the log entry (frame 0) that holds the run's parameters as JSON text.
 PARAMETERS_KEY = "flocking/parameters"
+#: Log entries (frame 0) of the walls (uint8 per axis) and obstacles (centre, radius rows).
+WALLS_KEY = "flocking/walls"
+OBSTACLES_KEY = "flocking/obstacles"
 
 
 class Frame:
-    """One frame: step, box, positions, headings and velocities of every particle."""
+    """One frame: step, box, positions, headings and velocities of every particle, their
+    species (``typeid`` into ``types``), and the box's ``walls`` and ``obstacles``.
 
-    def __init__(self, step: int, dim: int, box_lengths, points: np.ndarray, velocities: np.ndarray):
+    >>> frame = Frame(0, 2, [8, 8], np.zeros((3, 3)), np.zeros((3, 3)), typeid=[0, 1, 1], types=["A", "B"],
+    ...               walls=[True, False], obstacles=[[1.0, 2.0, 0.5]])
+    >>> frame.types, frame.typeid.tolist(), frame.walls, frame.obstacles.tolist()
+    (('A', 'B'), [0, 1, 1], (True, False), [[1.0, 2.0, 0.5]])
+    >>> Frame(0, 2, [8, 8], np.zeros((3, 3)), np.zeros((3, 3))).types   # a file without species
+    ('A',)
+    """
+
+    def __init__(self, step: int, dim: int, box_lengths, points: np.ndarray, velocities: np.ndarray,
+                 typeid=None, types=None, walls=None, obstacles=None):
         self.step = int(step)
         self.dim = int(dim)
         self.box_lengths = np.asarray(box_lengths, dtype=np.float64)[:dim]
         self.points = np.asarray(points, dtype=np.float32)
         self.velocities = np.asarray(velocities, dtype=np.float32)
+        n = len(self.points)
+        self.typeid = np.zeros(n, np.uint32) if typeid is None else np.asarray(typeid, dtype=np.uint32)
+        self.types = ("A",) if types is None else tuple(str(t) for t in types)
+        if self.typeid.shape != (n,) or (n and int(self.typeid.max()) >= len(self.types)):
+            raise ValueError(f"typeid: must be {n} indices into the {len(self.types)} types")
+        self.walls = (False,) * self.dim if walls is None else tuple(bool(w) for w in np.ravel(walls))[: self.dim]
+        self.obstacles = (np.zeros((0, self.dim + 1)) if obstacles is None
+                          else np.asarray(obstacles, dtype=np.float64).reshape(-1, self.dim + 1))
 
     @property
     def n(self) -> int:
@@ -90,6 +115,39 @@ class Frame:
         return f"Frame(step={self.step}, n={self.n}, dim={self.dim}, box={self.box_lengths.tolist()})"
 
 
+def static_parts(chunks: dict, dim: int) -> dict:
+    """The ``types``, ``typeid``, ``walls`` and ``obstacles`` arguments of a :class:`Frame`
+    from GSD chunks named as :func:`flocking.writers.static_chunks` names them (missing
+    ones are left to the frame's defaults).
+
+    >>> from flocking import Model
+    >>> from flocking.writers import static_chunks
+    >>> parts = static_parts(static_chunks(Model(n=3, box=8.0, boundary="wall", species=[{"n": 1}, {"n": 2}])), 2)
+    >>> parts["types"], parts["typeid"].tolist(), parts["walls"]
+    (['A', 'B'], [0, 1, 1], (True, True))
+    """
+    parts = {}
+    if "particles/types" in chunks:
+        parts["types"] = _type_names(chunks["particles/types"])
+    if "particles/typeid" in chunks:
+        parts["typeid"] = np.asarray(chunks["particles/typeid"])
+    walls = chunks.get("log/" + WALLS_KEY)
+    if walls is not None:
+        parts["walls"] = tuple(bool(w) for w in np.ravel(walls)[:dim])
+    obstacles = chunks.get("log/" + OBSTACLES_KEY)
+    if obstacles is not None:
+        parts["obstacles"] = np.asarray(obstacles, dtype=np.float64).reshape(-1, dim + 1)
+    return parts
+
+
+def _type_names(types) -> list[str]:
+    """Type names from gsd.hoomd (a list of str) or a raw ``particles/types`` chunk (int8 rows)."""
+    if isinstance(types, (list, tuple)):
+        return [str(t) for t in types]
+    rows = np.asarray(types).view(np.uint8).reshape(len(types), -1)
+    return [bytes(row).split(b"\0", 1)[0].decode() for row in rows]
+
+
 class Trajectory:
     """The frames of a GSD file, read lazily; index, slice or iterate it."""
 
@@ -97,6 +155,7 @@ class Trajectory:
         self.path = os.fspath(path)
         self._file = gsd.hoomd.open(self.path, mode="r")
         self._closed = False
+        self._static = None
 
     def __len__(self) -> int:
         return len(self._file)
@@ -104,7 +163,18 @@ class Trajectory:
     def __getitem__(self, index):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
-        return _frame(self._file[index])
+        return _frame(self._file[index], self._static_parts())
+
+    def _static_parts(self) -> dict:
+        """Walls and obstacles, read from frame 0 once and given to every frame."""
+        if self._static is None:
+            self._static = {}
+            if len(self):
+                first = self._file[0]
+                log = {"log/" + key: value for key, value in first.log.items()}
+                parts = static_parts(log, int(first.configuration.dimensions))
+                self._static = {key: parts[key] for key in ("walls", "obstacles") if key in parts}
+        return self._static
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
@@ -152,7 +222,7 @@ class Trajectory:
         self.close()
 
 
-def _frame(f: gsd.hoomd.Frame) -> Frame:
+def _frame(f: gsd.hoomd.Frame, static: dict | None = None) -> Frame:
     dim = int(f.configuration.dimensions)
     box = np.asarray(f.configuration.box, dtype=np.float64)
     n = int(f.particles.N)
@@ -163,7 +233,14 @@ def _frame(f: gsd.hoomd.Frame) -> Frame:
         # heading is the body x axis, rotated by the quaternion (w, x, y, z)
         q = f.particles.orientation
         velocities = np.zeros((n, 3), np.float32) if q is None else _body_x_axis(q)
-    return Frame(f.configuration.step, dim, box[:3], points, velocities)
+    # gsd.hoomd gives every frame frame 0's types and type ids, or ["A"] and zeros
+    types, typeid = f.particles.types, f.particles.typeid
+    if typeid is None or len(typeid) != n:
+        typeid = np.zeros(n, np.uint32)
+    types = _type_names(types) if types else ["A"]
+    types += [str(i) for i in range(len(types), int(np.max(typeid, initial=0)) + 1)]  # ids without a name
+    return Frame(f.configuration.step, dim, box[:3], points, velocities, typeid=typeid, types=types,
+                 **(static or {}))
 
 
 def _body_x_axis(q: np.ndarray) -> np.ndarray:

@@ -28,6 +28,8 @@ def size_value(text: str | None):
 @click.option("--theme", default="dark", show_default=True, help="dark or light.")
 @click.option("--style", default="auto", show_default=True,
               help="auto, arrows or density (2D), perspective (3D).")
+@click.option("--color", default="auto", show_default=True,
+              help="Colour particles by heading or species (auto: species when the run has several).")
 @click.option("--fps", type=click.FLOAT, default=None, help="Movie: frames per second. [default: 20]")
 @click.option("--dpi", type=click.FLOAT, default=None,
               help="Pixels per inch. [default: 120 for a movie, 200 for a picture]")
@@ -53,6 +55,7 @@ def animate(run_dir, output, quiet, size, **options):
       flocking animate big --style density --theme light --fps 30
       flocking animate run3d --rotate --output turn.mp4
       flocking animate runs/run-0001 -o last.pdf --theme light --size column
+      flocking animate mixed --color heading
     """
     from ..model import ParameterError
     from ..viz import style

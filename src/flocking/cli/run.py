@@ -189,7 +189,10 @@ def default_output_folder() -> str:
 @click.option("--theme", default="dark", help="Pictures and movie: dark or light.  [default: dark]")
 @click.option("--dpi", type=click.FLOAT, default=None, help="Pictures: pixels per inch.  [default: 200]")
 @click.option("--plot-format", default="png", help="Pictures: png, svg or pdf.  [default: png]")
-def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, dpi, plot_format, **options):
+@click.option("--color", default="auto",
+              help="Pictures, movie and --show: colour particles by heading or species (auto: species when the "
+                   "run has several).  [default: auto]")
+def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, dpi, plot_format, color, **options):
     """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
 
     \b
@@ -201,12 +204,13 @@ def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, d
       flocking run --resume hot --steps 10000                       # continue, or extend
       flocking compare runs/run-0001 again                          # check it
     """
-    looks = dict(theme=theme, dpi=dpi, fmt=plot_format)
+    looks = dict(theme=theme, dpi=dpi, fmt=plot_format, color=color)
     asked = {"plots": plots, "movie": movie}
-    if movie or plots is not False:
+    if movie or plots is not False or show:
         from ..viz.movie import check_picture_options
 
         check_picture_options(**looks)
+    show = show and {"theme": theme, "color": color}  # how the live view looks
     if resume_dir is not None:
         outputs = resume(resume_dir, config_file, out, quiet, options, asked, show=show)
         return pictures(resume_dir, quiet, **outputs, **looks)
@@ -294,7 +298,7 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
     if show:
         from ..viz.live import LiveView
 
-        sim.writers.append(LiveView(every=cfg.every or 10))
+        sim.writers.append(LiveView(every=cfg.every or 10, **(show if isinstance(show, dict) else {})))
     if not quiet:
         verb = f"resuming at step {sim.step}" if append else "running"
         click.echo(f"flocking: {verb} {cfg.model} -> {out}", err=True)

@@ -39,6 +39,7 @@ class Theme:
     lightness: float  # OKLab L of particle colours: far from the background's
     chroma: float  # OKLab chroma of a fully ordered heading, inside sRGB at every hue
     ink: tuple = (0.74, 0.125)  # (L, chroma) of the densest regions of a density map
+    obstacle: tuple = (0.3, 0.3, 0.3)  # fill of obstacles (their outline and walls: ``text``)
 
 
 def _hex(code: str) -> tuple:
@@ -47,9 +48,9 @@ def _hex(code: str) -> tuple:
 
 THEMES = {
     "dark": Theme("dark", _hex("#0b0e14"), _hex("#000000"), _hex("#e6e6e6"), _hex("#5a6270"), 0.74, 0.125,
-                  (0.74, 0.125)),
+                  (0.74, 0.125), _hex("#3a404c")),
     "light": Theme("light", _hex("#ffffff"), _hex("#fbfbf8"), _hex("#1a1a1a"), _hex("#9a9a9a"), 0.58, 0.098,
-                   (0.45, 0.076)),
+                   (0.45, 0.076), _hex("#c8ccd3")),
 }
 
 #: OKLab hue (radians) of heading 0 (+x): the hue of sRGB red, so +x reads as red.

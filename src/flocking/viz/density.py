@@ -1,11 +1,14 @@
 """2D frames as density maps, drawn with NumPy into RGB arrays at any particle count.
 
-Particles are binned on a grid of about one bin a pixel and smoothed with a periodic
-Gaussian (the box is periodic) wide enough to hold a set number of particles (and at
-most 1/32 of the picture), so the map shows structure, not counting noise:
+Particles are binned on a grid of about one bin a pixel and smoothed with a Gaussian,
+periodic along periodic axes and cut at walls, wide enough to hold a set number of
+particles (and at most 1/32 of the picture), so the map shows structure, not counting
+noise. Where walls or obstacles take part of a kernel's area, the density is divided by
+the free part, so a crowd along a wall or around an obstacle keeps its true density.
 
 * brightness is the local number density (particles per unit area), on a fixed scale
-  that a colour bar can show (:func:`density_scale`);
+  that a colour bar can show (:func:`density_scale`); coloured by species, the hue
+  mixes the species' colours in their local proportions;
 * hue is the local mean heading and chroma the local polar order, estimated over a
   wider kernel and corrected for the order that random headings show by chance
   (``|sum of n random unit vectors|^2`` is ``n`` on average). Colour shows only where
@@ -34,6 +37,7 @@ import math
 import numpy as np
 
 from .colors import Theme, angle_colors
+from .extensions import free_mask
 
 #: The density kernel holds this many particles on average (relative noise 1/5).
 DENSITY_COUNT = 25.0
@@ -73,18 +77,44 @@ def _smooth(grid: np.ndarray, kernel_ft: np.ndarray) -> np.ndarray:
     return np.fft.irfft2(np.fft.rfft2(grid) * kernel_ft, s=grid.shape)
 
 
+class _Smoother:
+    """Gaussian smoothing of grids of ``shape``: periodic, except along wall axes
+    (``walls`` as (x, y)), where the grid is padded with as many empty bins, so that
+    nothing wraps around from the other wall."""
+
+    def __init__(self, shape, walls):
+        self.shape = tuple(shape)
+        self.padded = tuple(2 * n if wall else n for n, wall in zip(self.shape, walls[::-1]))  # (rows: y, cols: x)
+        self._kernels = {}
+
+    def __call__(self, grid: np.ndarray, sigma: float, square: bool = False) -> np.ndarray:
+        key = (sigma, square)
+        if key not in self._kernels:
+            self._kernels[key] = _kernel_ft(self.padded, sigma, square)
+        if self.padded != self.shape:
+            big = np.zeros(self.padded)
+            big[: self.shape[0], : self.shape[1]] = grid
+            return _smooth(big, self._kernels[key])[: self.shape[0], : self.shape[1]]
+        return _smooth(grid, self._kernels[key])
+
+
 class DensityField:
     """Smoothed density, local order and mean heading of a 2D frame on a grid.
 
     ``positions`` are centred in the box; ``shape`` is ``(rows, columns)``; rows run
-    downward (+y up). Attributes, each of ``shape``: ``density`` (particles per unit
-    area), ``order`` (local polar order in [0, 1], 0 where too few particles), ``angle``
-    (direction of the local mean heading, radians), ``count`` (effective number of
-    particles in the order kernel), ``significance`` (``|S|^2`` over its mean for
-    random headings).
+    downward (+y up). ``walls`` (per axis) cut the smoothing; ``obstacles`` (rows ``cx,
+    cy, r`` in centred coordinates, with their periodic images) are no free space;
+    ``typeid`` (and ``types``, their number) sort particles into species. Attributes,
+    each of ``shape``: ``density`` (particles per unit area of free space), ``order``
+    (local polar order in [0, 1], 0 where too few particles), ``angle`` (direction of the
+    local mean heading, radians), ``count`` (effective number of particles in the order
+    kernel), ``significance`` (``|S|^2`` over its mean for random headings),
+    ``free`` (whether a bin is outside the obstacles); ``fractions``, ``(types, rows,
+    columns)``: each species' share of the density.
     """
 
-    def __init__(self, positions, headings, box_lengths, shape):
+    def __init__(self, positions, headings, box_lengths, shape, walls=(False, False), obstacles=None,
+                 typeid=None, types=1):
         ny, nx = shape
         lx, ly = float(box_lengths[0]), float(box_lengths[1])
         positions = np.asarray(positions, float)
@@ -95,16 +125,28 @@ class DensityField:
         count = np.bincount(cell, minlength=nx * ny).astype(float).reshape(ny, nx)
         sx = np.bincount(cell, weights=headings[:, 0], minlength=nx * ny).reshape(ny, nx)
         sy = np.bincount(cell, weights=headings[:, 1], minlength=nx * ny).reshape(ny, nx)
-        per_bin = max(len(positions), 1) / (nx * ny)
+        self.free = free_mask(np.zeros((0, 3)) if obstacles is None else obstacles, (lx, ly), shape)
+        per_bin = max(len(positions), 1) / max(int(self.free.sum()), 1)
         widest = max(shape) / 32  # sparse frames stay noisy rather than become a haze
         self.sigma_density = min(self.kernel_width(DENSITY_COUNT, per_bin), widest)
         self.sigma_order = min(self.kernel_width(ORDER_COUNT, per_bin), widest)
         bin_area = (lx / nx) * (ly / ny)
-        self.density = np.maximum(_smooth(count, _kernel_ft(shape, self.sigma_density)), 0.0) / bin_area
-        g = _kernel_ft(shape, self.sigma_order)
-        w1 = np.maximum(_smooth(count, g), 0.0)
-        w2 = np.maximum(_smooth(count, _kernel_ft(shape, self.sigma_order, square=True)), 0.0)
-        px, py = _smooth(sx, g), _smooth(sy, g)
+        smooth = _Smoother(shape, tuple(walls)[:2])
+        # the share of each kernel that is free space: 1 but beside walls and obstacles
+        area = 1.0
+        if any(walls) or not self.free.all():
+            area = np.maximum(smooth(self.free.astype(float), self.sigma_density), 1e-3)
+        self.density = np.where(self.free, np.maximum(smooth(count, self.sigma_density), 0.0) / area, 0.0) / bin_area
+        self.fractions = np.ones((1, ny, nx))
+        if typeid is not None and types > 1:
+            cells = np.asarray(typeid, np.int64) * (nx * ny) + cell
+            per_type = np.bincount(cells, minlength=types * nx * ny).astype(float).reshape(types, ny, nx)
+            smoothed = np.maximum(np.stack([smooth(g, self.sigma_density) for g in per_type]), 0.0)
+            total = smoothed.sum(axis=0)
+            self.fractions = np.divide(smoothed, total, out=np.full_like(smoothed, 1.0 / types), where=total > 1e-9)
+        w1 = np.maximum(smooth(count, self.sigma_order), 0.0)
+        w2 = np.maximum(smooth(count, self.sigma_order, square=True), 0.0)
+        px, py = smooth(sx, self.sigma_order), smooth(sy, self.sigma_order)
         # |S|^2 is W2 on average for random headings and W1^2 for aligned ones; pixels
         # that no particle reaches hold only the rounding noise of the FFT
         reached = (w1 > 1e-9 * w1.max()) & (w2 > 1e-9 * w2.max())
@@ -116,7 +158,7 @@ class DensityField:
         trust = np.clip(2.0 * self.significance / SIGNIFICANT - 1.0, 0.0, 1.0)
         self.order = np.sqrt(np.clip(ratio, 0.0, 1.0)) * trust
         self.angle = np.arctan2(py, px)
-        self.mean_density = len(positions) / (lx * ly)
+        self.mean_density = len(positions) / (lx * ly * self.free.mean())
 
     @staticmethod
     def kernel_width(particles: float, per_bin: float) -> float:
@@ -148,11 +190,15 @@ def density_scale(fields) -> float:
     return nice_ceiling(top)
 
 
-def density_image(field: DensityField, theme: Theme, vmax: float) -> np.ndarray:
+def density_image(field: DensityField, theme: Theme, vmax: float, species=None) -> np.ndarray:
     """RGB image of a :class:`DensityField`: brightness ``(density / vmax) ** GAMMA``,
-    hue the mean heading, chroma the local order."""
+    hue the mean heading, chroma the local order; or, given ``species`` colours
+    (``(types, 3)`` RGB), the species' colours mixed in their local proportions."""
     alpha = np.clip(field.density / vmax, 0.0, 1.0) ** GAMMA
-    ink = angle_colors(field.angle, theme, field.order, ink=True)
+    if species is not None:
+        ink = np.einsum("syx,sc->yxc", field.fractions, np.asarray(species, float)[: len(field.fractions)])
+    else:
+        ink = angle_colors(field.angle, theme, field.order, ink=True)
     background = np.asarray(theme.background, float)
     return background + alpha[..., None] * (ink - background)
 

@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 
-from ..trajectory import Frame
-from ..writers import Writer
+from ..trajectory import Frame, static_parts
+from ..writers import Writer, static_chunks
 
 
 def display_problem() -> str | None:
@@ -37,23 +37,28 @@ def display_problem() -> str | None:
 
 
 def frame_of(sim) -> Frame:
-    """The simulation's current state as a :class:`~flocking.Frame` (positions centred)."""
+    """The simulation's current state as a :class:`~flocking.Frame` (positions centred),
+    with its species, walls and obstacles as a trajectory file would give them."""
     state, model = sim.state, sim.model
     n, d = state.n, model.dim
     points = np.zeros((n, 3), np.float32)
     points[:, :d] = state.positions - np.asarray(model.box) / 2
     velocities = np.zeros((n, 3), np.float32)
     velocities[:, :d] = state.speeds[:, None] * state.headings
-    return Frame(state.step, d, model.box, points, velocities)
+    return Frame(state.step, d, model.box, points, velocities, **static_parts(static_chunks(model), d))
 
 
 class LiveView(Writer):
-    """Redraw a window every ``every`` steps, at most ``max_fps`` times a second."""
+    """Redraw a window every ``every`` steps, at most ``max_fps`` times a second; particles
+    coloured by ``color`` (``heading``, ``species``, or ``auto``: species if there are several)."""
 
     def __init__(self, every: int = 10, theme: str = "dark", max_fps: float = 30.0, size: float = 6.0,
-                 stream=None):
+                 stream=None, color: str = "auto"):
+        from .extensions import check_color
+
         self.every = max(1, int(every))
         self.theme = theme
+        self.color = check_color(color)
         self.min_interval = 1.0 / max_fps
         self.size = size
         self.stream = stream
@@ -77,7 +82,7 @@ class LiveView(Writer):
             import matplotlib.pyplot as plt
 
             frame = frame_of(sim)
-            self.scene = _scene(frame, sim.parameters(), self.theme, self.size)
+            self.scene = _scene(frame, sim.parameters(), self.theme, self.size, self.color)
             self.scene.figure.canvas.manager.set_window_title(f"flocking: {sim.model}")
             plt.show(block=False)
             plt.pause(0.001)
@@ -109,7 +114,7 @@ class LiveView(Writer):
             self.scene = None
 
 
-def _scene(frame, parameters, theme, size):
+def _scene(frame, parameters, theme, size, color="auto"):
     from .render import Scene
 
-    return Scene.for_frame(frame, parameters, theme=theme, size=size, dpi=100, pyplot=True).draw(frame)
+    return Scene.for_frame(frame, parameters, theme=theme, size=size, dpi=100, pyplot=True, color=color).draw(frame)

@@ -20,6 +20,7 @@ import numpy as np
 from ..model import ParameterError
 from . import style as house
 from .colors import get_theme
+from .extensions import check_color
 from .render import Scene, check_style
 
 FORMATS = (".mp4", ".gif")
@@ -73,11 +74,12 @@ def fix_density_scale(scene: Scene, traj, indices) -> None:
 
 def write_movie(trajectory, output, *, theme="dark", style="auto", fps=20.0, dpi=120, size=6.0,
                 start=None, stop=None, stride=1, arrow_scale=1.0, time_label=True, rotate=False,
-                azim=-60.0, elev=25.0, progress=False, crf=CRF) -> str:
+                azim=-60.0, elev=25.0, progress=False, crf=CRF, color="auto") -> str:
     """Write ``trajectory`` (a path, run folder or :class:`Trajectory`) to ``output``.
 
     ``output`` ends in ``.mp4`` (H.264) or ``.gif``. ``rotate`` turns a 3D camera once
-    around the box over the movie (a 2D trajectory is refused). Returns the output path.
+    around the box over the movie (a 2D trajectory is refused). ``color``: ``heading``,
+    ``species`` or ``auto`` (species if the run has several). Returns the output path.
     """
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
@@ -87,6 +89,7 @@ def write_movie(trajectory, output, *, theme="dark", style="auto", fps=20.0, dpi
     if not np.isfinite(fps) or not 0 < fps <= 240:
         raise ParameterError(f"fps: must be in (0, 240] (got {fps!r})")
     get_theme(theme)
+    check_color(color)
     traj, owned = _open(trajectory)
     try:
         indices = select_frames(len(traj), start, stop, stride)
@@ -94,7 +97,7 @@ def write_movie(trajectory, output, *, theme="dark", style="auto", fps=20.0, dpi
         check_style(style, first.dim)
         check_rotate(rotate, first.dim)
         scene = Scene.for_frame(first, traj.parameters, theme=theme, style=style, size=size, dpi=dpi,
-                                arrow_scale=arrow_scale, time_label=time_label, azim=azim, elev=elev)
+                                arrow_scale=arrow_scale, time_label=time_label, azim=azim, elev=elev, color=color)
         fix_density_scale(scene, traj, indices)
         turn = 360.0 / len(indices) if rotate else 0.0
 
@@ -170,13 +173,14 @@ def encode_gif(path, frames, fps, palette) -> None:
 
 
 def write_picture(trajectory, output, *, frame=-1, theme="dark", style="auto", dpi=None, size=6.0,
-                  arrow_scale=1.0, time_label=True, azim=-60.0, elev=25.0, title=True) -> str:
+                  arrow_scale=1.0, time_label=True, azim=-60.0, elev=25.0, title=True, color="auto") -> str:
     """One frame of ``trajectory`` (index ``frame``, default the last) as a ``.png``,
     ``.svg`` or ``.pdf`` picture. Returns the output path."""
     output = os.fspath(output)
     house.check_format(output)
     dpi = house.check_dpi(dpi) or house.DPI
     get_theme(theme)
+    check_color(color)
     traj, owned = _open(trajectory)
     try:
         if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) \
@@ -185,7 +189,7 @@ def write_picture(trajectory, output, *, frame=-1, theme="dark", style="auto", d
         shown = traj[int(frame)]
         scene = Scene.for_frame(shown, traj.parameters, theme=theme, style=style, size=size, dpi=dpi,
                                 arrow_scale=arrow_scale, time_label=time_label, azim=azim, elev=elev,
-                                title=title)
+                                title=title, color=color)
         return scene.draw(shown).save(output)
     finally:
         if owned:
@@ -200,26 +204,28 @@ def read_observables(path: str) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(steps), np.asarray(phi)
 
 
-def check_picture_options(theme="dark", dpi=None, fmt="png") -> None:
-    """Refuse a bad theme, resolution or picture format before anything runs."""
+def check_picture_options(theme="dark", dpi=None, fmt="png", color="auto") -> None:
+    """Refuse a bad theme, resolution, picture format or colouring before anything runs."""
     get_theme(theme)
+    check_color(color)
     house.check_dpi(dpi)
     if fmt not in house.FORMATS:
         raise ParameterError(f"plot_format: must be one of {', '.join(house.FORMATS)} (got {fmt!r})")
 
 
-def write_plots(run_dir: str, theme: str = "dark", dpi=None, fmt: str = "png", size=6.0) -> list[str]:
+def write_plots(run_dir: str, theme: str = "dark", dpi=None, fmt: str = "png", size=6.0,
+                color: str = "auto") -> list[str]:
     """``snapshot.<fmt>`` (last frame) and ``polar_order.<fmt>`` in ``run_dir``; their paths."""
     from .timeseries import polar_order_figure
 
-    check_picture_options(theme, dpi, fmt)
+    check_picture_options(theme, dpi, fmt, color)
     traj, _ = _open(run_dir)
     written = []
     with traj:
         last = traj[-1]
         params = traj.parameters
         written.append(write_picture(traj, os.path.join(run_dir, f"snapshot.{fmt}"), theme=theme, dpi=dpi,
-                                     size=size))
+                                     size=size, color=color))
     obs = os.path.join(run_dir, "observables.csv")
     if os.path.isfile(obs):
         steps, phi = read_observables(obs)
@@ -229,15 +235,16 @@ def write_plots(run_dir: str, theme: str = "dark", dpi=None, fmt: str = "png", s
 
 
 def after_run(run_dir: str, plots: bool = True, movie: bool = False, quiet: bool = False,
-              theme: str = "dark", dpi=None, fmt: str = "png") -> None:
+              theme: str = "dark", dpi=None, fmt: str = "png", color: str = "auto") -> None:
     """What ``flocking run`` does when a run ends: pictures unless ``plots=False``, a movie if asked."""
     import click
 
     if plots:
-        written = write_plots(run_dir, theme=theme, dpi=dpi, fmt=fmt)
+        written = write_plots(run_dir, theme=theme, dpi=dpi, fmt=fmt, color=color)
         if not quiet:
             click.echo(f"flocking: wrote {', '.join(os.path.basename(p) for p in written)}", err=True)
     if movie:
-        path = write_movie(run_dir, os.path.join(run_dir, "movie.mp4"), theme=theme, progress=not quiet)
+        path = write_movie(run_dir, os.path.join(run_dir, "movie.mp4"), theme=theme, progress=not quiet,
+                           color=color)
         if not quiet:
             click.echo(f"flocking: wrote {path}", err=True)

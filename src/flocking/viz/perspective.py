@@ -11,7 +11,8 @@ first, so hidden ones cost a comparison), then lit like a studio render:
 
 The picture is drawn at twice its size and averaged down (anti-aliasing). The colour of
 a cone is its heading's (:func:`~flocking.viz.colors.heading_colors`), or any other
-``(N, 3)`` colours passed in.
+``(N, 3)`` colours passed in. Obstacles are shaded spheres in the same light, and the
+edges of the box's wall faces are drawn thicker, in the text colour.
 
 >>> from flocking.viz.colors import THEMES
 >>> img = perspective_image(np.zeros((1, 3)), np.array([[1.0, 0, 0]]), (4.0, 4.0, 4.0), 64,
@@ -206,23 +207,88 @@ def _compose(depth, kind, rgb, ss, wide, scale, near, far, background, out):  # 
             out[oy, ox, 2] = acc2 / n
 
 
-def _box_edges(lengths: np.ndarray, samples: int) -> np.ndarray:
+def _box_edges(lengths: np.ndarray, samples: int, walls=(False, False, False)) -> tuple[np.ndarray, np.ndarray]:
+    """Points along the box's 12 edges, and whether each lies on a wall face (an edge
+    along axis a lies on the faces across the other two axes)."""
     half = 0.5 * lengths
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
     t = np.linspace(0.0, 1.0, samples)[:, None]
-    edges = [corners[i] + t * (corners[j] - corners[i]) for i in range(8) for j in range(i + 1, 8)
-             if np.count_nonzero(corners[i] != corners[j]) == 1]
-    return np.concatenate(edges)
+    points, on_wall = [], []
+    for i in range(8):
+        for j in range(i + 1, 8):
+            if np.count_nonzero(corners[i] != corners[j]) == 1:
+                along = int(np.flatnonzero(corners[i] != corners[j])[0])
+                points.append(corners[i] + t * (corners[j] - corners[i]))
+                on_wall.append(np.full(samples, any(w for a, w in enumerate(walls) if a != along)))
+    return np.concatenate(points), np.concatenate(on_wall)
+
+
+def _spheres(cam: Camera, spheres: np.ndarray, albedo, lengths, depth: np.ndarray, rgb: np.ndarray) -> None:
+    """Ray-cast spheres (rows: centre, radius; world coordinates) cut by the box (a copy
+    across a periodic side shows its flat cut) into ``depth`` and ``rgb``, lit like the cones."""
+    size = cam.size
+    centre = 0.5 * size
+    half = 0.5 * (LIGHT + np.array([0.0, 0.0, -1.0]))
+    half /= np.linalg.norm(half)
+    box_centre = cam.to_camera(np.zeros((1, 3)))[0]
+    for row in np.asarray(spheres, float).reshape(-1, 4):
+        c, r = cam.to_camera(row[None, :3])[0], row[3]
+        if c[2] - r <= 1e-9:
+            continue
+        u, v = centre + cam.focal * c[0] / c[2], centre - cam.focal * c[1] / c[2]
+        reach = cam.focal * r / (c[2] - r) + 2.0
+        c0, c1 = max(int(u - reach), 0), min(int(u + reach) + 1, size)
+        r0, r1 = max(int(v - reach), 0), min(int(v + reach) + 1, size)
+        if c0 >= c1 or r0 >= r1:
+            continue
+        dx = np.broadcast_to(((np.arange(c0, c1) + 0.5 - centre) / cam.focal)[None, :], (r1 - r0, c1 - c0))
+        dy = np.broadcast_to((-(np.arange(r0, r1) + 0.5 - centre) / cam.focal)[:, None], (r1 - r0, c1 - c0))
+        ray = np.stack([dx, dy, np.ones_like(dx)], axis=-1)  # the ray is t * ray: t is the depth
+        dd = np.einsum("...i,...i", ray, ray)
+        dc = ray @ c
+        disc = np.maximum(dc * dc - dd * (c @ c - r * r), 0.0)
+        inside_ray = dc * dc - dd * (c @ c - r * r) >= 0
+        t_in, t_out = (dc - np.sqrt(disc)) / dd, (dc + np.sqrt(disc)) / dd
+        # the box's slabs, in camera coordinates: the ray is in the box for t in [enter, leave]
+        enter, leave = np.zeros_like(dd), np.full_like(dd, np.inf)
+        face = np.full(dd.shape, -1)
+        for axis, length in enumerate(lengths):
+            n = cam.rotation[:, axis]  # the world axis in camera coordinates
+            along, at = ray @ n, box_centre @ n
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t0, t1 = (at - length / 2) / along, (at + length / 2) / along
+            near, far = np.minimum(t0, t1), np.maximum(t0, t1)
+            near = np.where(along == 0, -np.inf, near)
+            far = np.where(along == 0, np.inf, far)
+            face = np.where(near > enter, axis, face)
+            enter, leave = np.maximum(enter, near), np.minimum(leave, far)
+        t = np.maximum(t_in, enter)
+        hit = inside_ray & (t <= np.minimum(t_out, leave)) & (t > 0) & (t < depth[r0:r1, c0:c1])
+        if not hit.any():
+            continue
+        t = np.where(hit, t, c[2])  # misses: any finite depth, their colour is not used
+        normal = (t[..., None] * ray - c) / r
+        cut = hit & (enter > t_in)  # the ray enters the sphere outside the box: the flat cut
+        for axis in range(len(lengths)):
+            n = cam.rotation[:, axis]
+            toward = -np.sign(ray @ n)[..., None] * n  # the face's normal toward the camera
+            normal = np.where((cut & (face == axis))[..., None], toward, normal)
+        diffuse = np.maximum(normal @ LIGHT, 0.0)
+        spec = np.maximum(normal @ half, 0.0) ** 40
+        colour = np.asarray(albedo, float)[None, None, :] * (0.52 + 0.62 * diffuse)[..., None] + 0.3 * spec[..., None]
+        depth[r0:r1, c0:c1][hit] = t[hit]
+        rgb[r0:r1, c0:c1][hit] = colour[hit]
 
 
 def perspective_image(points: np.ndarray, headings: np.ndarray, box_lengths, size: int,
                       theme: Theme, azim: float = -60.0, elev: float = 25.0,
                       length: float | None = None, colors: np.ndarray | None = None,
-                      supersample: int = 2) -> np.ndarray:
+                      supersample: int = 2, walls=(False, False, False), obstacles=None) -> np.ndarray:
     """``size x size`` RGB image of a 3D frame (points centred in the box).
 
     ``length`` is the cone length in world units (default :func:`glyph_length`);
-    ``colors`` are ``(N, 3)`` RGB albedos (default: by heading).
+    ``colors`` are ``(N, 3)`` RGB albedos (default: by heading); ``walls`` (per axis)
+    mark the edges of wall faces; ``obstacles`` are spheres (rows: centre, radius).
     """
     ss = max(1, int(supersample))
     big = int(size) * ss
@@ -242,14 +308,21 @@ def perspective_image(points: np.ndarray, headings: np.ndarray, box_lengths, siz
         _cones(np.ascontiguousarray(centres[order]), np.ascontiguousarray(axes[order]),
                np.ascontiguousarray(albedo[order]), length, ASPECT * length, cam.focal, big, LIGHT,
                depth, rgb)
-    kind = np.isfinite(depth).astype(np.uint8)  # 0 background, 1 a cone, 2 the wire frame
-    # the box's wire frame, hidden where a particle is in front of it
-    u, v, z = cam.project(_box_edges(lengths, 3 * big))
-    for du, dv in [(0, 0)] + ([(1, 0), (0, 1), (1, 1)] if ss > 1 else []):
+    if obstacles is not None and len(obstacles):
+        albedo = 0.65 * np.asarray(theme.obstacle) + 0.35  # lighter than the discs of 2D: shading darkens
+        _spheres(cam, obstacles, albedo, lengths, depth, rgb)
+    kind = np.isfinite(depth).astype(np.uint8)  # 0 background, 1 a cone or sphere, 2 the wire frame
+    # the box's wire frame, hidden where a particle is in front of it; wall edges thicker
+    edges, on_wall = _box_edges(lengths, 3 * big, walls)
+    u, v, z = cam.project(edges)
+    thin = [(0, 0)] + ([(1, 0), (0, 1), (1, 1)] if ss > 1 else [])
+    thick = [(du, dv) for du in range(-ss, ss + 1) for dv in range(-ss, ss + 1)]
+    for du, dv in thick:
+        drawn = on_wall | ((du, dv) in thin)
         iu, iv = np.floor(u).astype(np.int64) + du, np.floor(v).astype(np.int64) + dv
-        ok = (iu >= 0) & (iu < big) & (iv >= 0) & (iv < big)
+        ok = drawn & (iu >= 0) & (iu < big) & (iv >= 0) & (iv < big)
         ok[ok] &= depth[iv[ok], iu[ok]] > z[ok]
-        rgb[iv[ok], iu[ok]] = theme.edge
+        rgb[iv[ok], iu[ok]] = np.where(on_wall[ok, None], theme.text, theme.edge)
         depth[iv[ok], iu[ok]] = z[ok]
         kind[iv[ok], iu[ok]] = 2
     image = np.empty((int(size), int(size), 3))

@@ -15,6 +15,11 @@ movie costs one redraw a frame, never a new figure. Three styles:
 ``auto`` picks arrows while each arrow gets :data:`ARROW_MIN_POINTS` on the page
 (about 3e4 particles at the default size), density beyond, and perspective in 3D.
 
+Particles are coloured by heading, or (``color="species"``, the default for a run with
+several species) by species, with a legend naming them. Walls are a solid line along
+each wall axis' sides (periodic sides keep the plain frame), obstacles solid discs (3D:
+shaded spheres) drawn over the particles, in every style and both themes.
+
 >>> import flocking
 >>> frame = flocking.Frame(0, 2, [4, 4], np.zeros((1, 3)), np.array([[0.5, 0, 0]]))
 >>> scene = Scene.for_frame(frame, size=3.0, dpi=64)
@@ -33,6 +38,7 @@ import numpy as np
 from ..model import Model, ParameterError
 from . import style as house
 from .colors import angle_colors, get_theme, heading_colors, theme_of_color, wheel_image
+from .extensions import check_color, choose_color, obstacle_images, species_colors
 from .density import GAMMA, DensityField, density_colormap, density_image, density_scale, density_ticks, grid_shape
 from .perspective import Camera, glyph_length, perspective_image
 
@@ -116,8 +122,42 @@ def describe(parameters, dim: int, n: int, box_lengths) -> tuple[str, str]:
         parts.append(fr"$\Delta t$ = {_g(m['dt'])}")
     if m.get("update", "backward") != "backward":
         parts.append(f"{m['update']} update")
+    parts += _extension_parts(m, dim)
     parts.append(f"seed {m.get('seed', 0)}")
     return first, " \u00b7 ".join(parts)
+
+
+def _extension_parts(m: dict, dim: int) -> list[str]:
+    """Caption parts of the extensions a model's dict has on (MODEL.md's symbols)."""
+    parts = []
+    boundary = str(m.get("boundary", "periodic")).split(",")
+    boundary = boundary * dim if len(boundary) == 1 else boundary
+    walled = [axis for axis, kind in zip("xyz", boundary) if kind == "wall"]
+    if walled:
+        parts.append("walls" if len(walled) == dim else "walls on " + " and ".join(f"${a}$" for a in walled))
+    if m.get("obstacles"):
+        count = len(m["obstacles"])
+        parts.append(f"{count} obstacle{'s' * (count > 1)}")
+    if len(m.get("species") or ()) > 1:
+        symbols = {"speed": "$v_0$", "noise": r"$\eta$", "alignment": r"$\varepsilon$", "chirality": r"$\omega$",
+                   "field_strength": "$h$"}
+
+        def one(sp):
+            own = [f"{symbol} = {_g(sp[key])}" for key, symbol in symbols.items() if sp.get(key) is not None]
+            return str(sp.get("name", "?")) + (f" ({', '.join(own)})" if own else "")
+
+        parts.append("species " + ", ".join(one(sp) for sp in m["species"]))
+    if m.get("coupling") is not None:
+        parts.append("coupled species")
+    if m.get("vision") is not None and m["vision"] < np.pi:
+        parts.append(fr"vision $\theta_v$ = {_g(m['vision'])}")
+    if m.get("alignment_rule", "polar") != "polar":
+        parts.append(f"{m['alignment_rule']} alignment")
+    if m.get("chirality"):
+        parts.append(fr"$\omega$ = {_g(m['chirality'])}")
+    if m.get("field_strength"):
+        parts.append(f"field $h$ = {_g(m['field_strength'])}")
+    return parts
 
 
 def time_text(frame, dt: float = 1.0, lines: int = 1) -> str:
@@ -128,17 +168,27 @@ def time_text(frame, dt: float = 1.0, lines: int = 1) -> str:
     return text + ("\n" if lines > 1 else "   ") + fr"$\varphi$ = {frame.polar_order:.3f}"
 
 
+def frame_density(frame, pixels: int) -> DensityField:
+    """The :class:`DensityField` of a 2D frame, its longer side ``pixels`` bins, with its
+    walls, obstacles and species."""
+    box = frame.box_lengths
+    return DensityField(frame.positions, frame.headings, box, grid_shape(box, pixels), walls=frame.walls,
+                        obstacles=obstacle_images(frame.obstacles, box, frame.walls), typeid=frame.typeid,
+                        types=len(frame.types))
+
+
 class FrameArtist:
     """The particles of one frame on a matplotlib axes; :meth:`update` redraws them in place.
 
     It changes nothing outside the axes (it sets their limits, aspect and, for images,
-    background). Colours come from :meth:`colors` (the heading), the one place another
-    colour source would plug in. ``density_max`` fixes the top of the density scale
-    (default: from the first frame).
+    background). Colours come from :meth:`colors`: the heading, or with ``color``
+    ``species`` each particle's species (``auto``: species if the frame has several).
+    The frame's walls and obstacles are drawn with it. ``density_max`` fixes the top of
+    the density scale (default: from the first frame).
     """
 
     def __init__(self, ax, frame, theme="dark", style="auto", arrow_scale=1.0, pixels=None,
-                 azim=-60.0, elev=25.0, density_max=None, triad=True):
+                 azim=-60.0, elev=25.0, density_max=None, triad=True, color="auto"):
         self.ax = ax
         self.theme = get_theme(theme)
         self.dim = frame.dim
@@ -149,6 +199,10 @@ class FrameArtist:
         self.pixels = max(int(pixels), 16)
         points = max(bbox.width, bbox.height) * 72.0 / ax.figure.dpi
         self.style = choose_style(style, frame.dim, frame.n, self.box, points)
+        self.color = choose_color(color, frame.types)
+        self.types = frame.types
+        self.walls = tuple(frame.walls)
+        self.obstacles = obstacle_images(frame.obstacles, self.box, self.walls)
         self.arrow_scale = positive("arrow_scale", arrow_scale)
         self.azim, self.elev = float(azim), float(elev)
         self.density_max = None if density_max is None else positive("density_max", density_max)
@@ -164,11 +218,45 @@ class FrameArtist:
             ax.set_facecolor(self.theme.background)
         self._artist = None
         self._triad = self._make_triad() if self.style == "perspective" and triad else None
+        self.boundaries = self._boundaries() if self.dim == 2 else []
         self.update(frame)
 
     def colors(self, frame) -> np.ndarray:
-        """``(N, 3)`` RGB of the particles: their headings' colours."""
+        """``(N, 3)`` RGB of the particles: their headings' or their species' colours."""
+        if self.color == "species":
+            return species_colors(len(self.types), self.theme)[frame.typeid]
         return heading_colors(frame.headings, self.theme)
+
+    def legend_handles(self) -> list:
+        """One legend entry per species (none when colouring by heading)."""
+        from matplotlib.lines import Line2D
+
+        if self.color != "species":
+            return []
+        return [Line2D([], [], ls="none", marker="s", color=tuple(c), label=name)
+                for name, c in zip(self.types, species_colors(len(self.types), self.theme))]
+
+    def _boundaries(self) -> list:
+        """Wall lines (a side of each wall axis) and obstacle discs above the particles (2D)."""
+        from matplotlib.collections import PatchCollection
+        from matplotlib.patches import Circle
+
+        t, ax = self.theme, self.ax
+        width = 0.25 * house.fontsize(ax.figure)  # points: reads at every size
+        hx, hy = self.box[:2] / 2
+        artists = []
+        if len(self.obstacles):
+            discs = PatchCollection([Circle(row[:2], row[2]) for row in self.obstacles], facecolor=t.obstacle,
+                                    edgecolor=t.text, linewidth=0.4 * width, zorder=4)
+            artists.append(ax.add_collection(discs))
+        sides = {0: ([-hx, -hx], [-hy, hy], [hx, hx], [-hy, hy]), 1: ([-hx, hx], [-hy, -hy], [-hx, hx], [hy, hy])}
+        for axis, wall in enumerate(self.walls):
+            if wall:
+                x0, y0, x1, y1 = sides[axis]
+                for xs, ys in ((x0, y0), (x1, y1)):
+                    artists += ax.plot(xs, ys, color=t.text, lw=width, solid_capstyle="projecting", clip_on=False,
+                                       zorder=5)
+        return artists
 
     @property
     def arrow_length(self) -> float:
@@ -205,19 +293,20 @@ class FrameArtist:
             self._artist.set_facecolor(colors)
 
     def density_field(self, frame) -> DensityField:
-        return DensityField(frame.positions, frame.headings, self.box, grid_shape(self.box, self.pixels))
+        return frame_density(frame, self.pixels)
 
     def _density(self, frame) -> None:
         field = self.density_field(frame)
         if self.density_max is None:
             self.density_max = density_scale([field])
-        self._show(density_image(field, self.theme, self.density_max), "bilinear")
+        species = species_colors(len(self.types), self.theme) if self.color == "species" else None
+        self._show(density_image(field, self.theme, self.density_max, species), "bilinear")
 
     def _perspective(self, frame) -> None:
         rgb = perspective_image(frame.points, frame.headings, self.box, self.pixels, self.theme,
                                 azim=self.azim, elev=self.elev,
                                 length=glyph_length(frame.n, self.box, self.arrow_scale),
-                                colors=self.colors(frame))
+                                colors=self.colors(frame), walls=self.walls, obstacles=self.obstacles)
         self._show(rgb, "antialiased")
         if self._triad is not None:
             self._update_triad()
@@ -271,17 +360,21 @@ class Scene:
     ``size`` is a name of :data:`.style.SIZES` (``column``, ``page``, ``slide``), a width
     in inches (the height follows the box) or ``(width, height)``; ``dpi`` its pixels
     per inch. The pixel size is rounded to a multiple of 16 so that H.264 takes it as
-    it is; ``scene.pixels`` is ``(width, height)``.
+    it is; ``scene.pixels`` is ``(width, height)``. ``types`` are the species' names
+    (:meth:`for_frame` reads them from the frame): with ``color`` ``species`` (or
+    ``auto`` and several species) the key names them instead of showing the heading wheel.
     """
 
     def __init__(self, dim, n, box_lengths, parameters=None, theme="dark", style="auto", size=6.0,
                  dpi=120, arrow_scale=1.0, time_label=True, azim=-60.0, elev=25.0, pyplot=False,
-                 density_max=None, title=True):
+                 density_max=None, title=True, color="auto", types=("A",)):
         from matplotlib import colors as mcolors
         from matplotlib.cm import ScalarMappable
 
         self.theme = t = get_theme(theme)
         check_style(style, dim)
+        self.color = choose_color(color, types)
+        self.types = tuple(types)
         dpi = house.check_dpi(dpi) or house.DPI
         width, height, fs = house.resolve_size(size)
         if isinstance(size, str) and size != "slide":  # a paper's width; the height follows the box
@@ -312,7 +405,10 @@ class Scene:
         self.ax.set_anchor("E")
         self.key_axes.set_anchor("W")
         self._style_axes(fs)
-        self._key(dim, fs, ink=density)
+        if self.color == "species":
+            self._species_key(fs)
+        else:
+            self._key(dim, fs, ink=density)
         self.colorbar = None
         if density:
             cax = side[1].subgridspec(1, 3, width_ratios=[1, 0.5, 1])[0, 1]
@@ -352,7 +448,8 @@ class Scene:
         self._centre()
         bbox = self.ax.get_window_extent()
         self._args = dict(theme=t, style=self.style, arrow_scale=arrow_scale, azim=azim, elev=elev,
-                          pixels=int(round(max(bbox.width, bbox.height))), density_max=density_max)
+                          pixels=int(round(max(bbox.width, bbox.height))), density_max=density_max,
+                          color=self.color)
         self.artist = None
 
     def _centre(self) -> None:
@@ -372,7 +469,7 @@ class Scene:
 
     @classmethod
     def for_frame(cls, frame, parameters=None, **options) -> Scene:
-        return cls(frame.dim, frame.n, frame.box_lengths, parameters, **options)
+        return cls(frame.dim, frame.n, frame.box_lengths, parameters, types=frame.types, **options)
 
     @classmethod
     def for_trajectory(cls, traj, **options) -> Scene:
@@ -407,6 +504,22 @@ class Scene:
         self._key_label = ax.text(0.0, -1.62, label, ha="center", va="top", color=t.text, fontsize=small,
                                   linespacing=1.2)
 
+    def _species_key(self, fs: float) -> None:
+        """The species' names beside squares of their colours, top down, in the key's place
+        (spaced in points, so the rows read alike at every size)."""
+        ax, t = self.key_axes, self.theme
+        ax.set_axis_off()
+        small = 0.75 * fs
+        line = 1.6 * small
+        anchor = dict(xy=(0.12, 0.98), xycoords="axes fraction", textcoords="offset points", va="top",
+                      fontsize=small, annotation_clip=False)
+        ax.annotate("species", xytext=(0, 0), color=t.text, **anchor)
+        for s, (name, rgb) in enumerate(zip(self.types, species_colors(len(self.types), t))):
+            y = -line * (s + 1.2)
+            ax.annotate("\u25a0", xytext=(0, y), color=tuple(rgb), **anchor)
+            ax.annotate(name, xytext=(1.4 * small, y), color=t.text, **anchor)
+        self._key_label = None
+
     @property
     def density_max(self) -> float | None:
         """Top of the density scale (density maps; ``None`` until set or drawn)."""
@@ -434,13 +547,16 @@ class Scene:
 
     def density_field(self, frame) -> DensityField:
         """The :class:`DensityField` of ``frame`` on this scene's grid."""
-        return DensityField(frame.positions, frame.headings, self.box, grid_shape(self.box, self._args["pixels"]))
+        return frame_density(frame, self._args["pixels"])
 
     def draw(self, frame, azim: float | None = None) -> Scene:
         if self.artist is None:
             self.artist = FrameArtist(self.ax, frame, **self._args)
             if self.artist.style == "density":
                 self.set_density_max(self.artist.density_max)
+            if self.time_label is not None and self.artist.walls[1:2] == (True,):  # below the top wall's line
+                width = 0.25 * house.fontsize(self.figure) + 1.5  # points, as the line
+                self.time_label.set_y(0.985 - width / 72 * self.figure.dpi / self.ax.get_window_extent().height)
         else:
             self.artist.update(frame, azim=azim)
         if self.time_label is not None:
@@ -461,22 +577,29 @@ class Scene:
 
 
 def plot_frame(frame, ax=None, theme=None, style="auto", arrow_scale=1.0, parameters=None,
-               size=6.0, dpi=100, azim=-60.0, elev=25.0):
+               size=6.0, dpi=100, azim=-60.0, elev=25.0, color="auto"):
     """Draw a :class:`~flocking.Frame`; returns the axes.
 
     ``parameters`` (a :class:`~flocking.Model` or a run's parameters) fill the title.
     With ``ax=None`` a whole figure (title, key, time label) is made through pyplot, so
-    it shows in a notebook, in ``theme`` (default dark). With ``ax`` only the particles
-    are drawn, on those axes and nowhere else; ``theme`` defaults to the one that suits
-    the axes' background.
+    it shows in a notebook, in ``theme`` (default dark). With ``ax`` only the particles,
+    walls and obstacles are drawn, on those axes and nowhere else (and, coloured by
+    species, a legend naming them); ``theme`` defaults to the one that suits the axes'
+    background. ``color``: ``heading``, ``species`` or ``auto`` (species if the frame
+    has several).
     """
+    check_color(color)
     if ax is None:
         scene = Scene.for_frame(frame, as_parameters(parameters), theme=theme or "dark", style=style,
                                 size=size, dpi=dpi, arrow_scale=arrow_scale, azim=azim, elev=elev,
-                                pyplot=True)
+                                pyplot=True, color=color)
         scene.draw(frame)
         return scene.ax
     as_parameters(parameters)  # refused like the rest, even though only the title uses it
     theme = theme_of_color(ax.get_facecolor()) if theme is None else get_theme(theme)
-    FrameArtist(ax, frame, theme=theme, style=style, arrow_scale=arrow_scale, azim=azim, elev=elev)
+    artist = FrameArtist(ax, frame, theme=theme, style=style, arrow_scale=arrow_scale, azim=azim, elev=elev,
+                         color=color)
+    handles = artist.legend_handles()
+    if handles:
+        house.legend(ax, theme, handles=handles, loc="upper right")
     return ax

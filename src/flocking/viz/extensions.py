@@ -1,0 +1,83 @@
+"""What a picture shows beyond the particles' headings: species colours, walls, obstacles.
+
+* Species take the house palette's colours in order (:func:`.style.palette`, qualitative,
+  chosen to read on both themes), and :func:`choose_color` picks them by default for a
+  run with several species.
+* Obstacles on periodic axes wrap around the box like the particles do:
+  :func:`obstacle_images` gives every copy that reaches into the box.
+
+>>> from flocking.viz.colors import THEMES
+>>> species_colors(2, THEMES["light"]).round(3).tolist()
+[[0.122, 0.373, 0.659], [0.82, 0.286, 0.357]]
+>>> obstacle_images(np.array([[4.5, 0.0, 1.0]]), (10.0, 10.0), (False, True)).tolist()
+[[-5.5, 0.0, 1.0], [4.5, 0.0, 1.0]]
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from ..model import ParameterError
+from .colors import Theme, get_theme
+
+#: What particles can be coloured by: ``auto`` is ``species`` for a frame with several
+#: species, ``heading`` otherwise.
+COLORS = ("auto", "heading", "species")
+
+
+def check_color(color: str) -> str:
+    if color not in COLORS:
+        raise ParameterError(f"color: must be one of {', '.join(COLORS)} (got {color!r})")
+    return color
+
+
+def choose_color(color: str, types) -> str:
+    """Resolve ``auto`` for a frame whose species are named ``types``."""
+    color = check_color(color)
+    if color == "auto":
+        return "species" if len(types) > 1 else "heading"
+    return color
+
+
+def species_colors(count: int, theme: Theme) -> np.ndarray:
+    """``(count, 3)`` RGB of ``count`` species: the palette's colours, in turn."""
+    from matplotlib.colors import to_rgb
+
+    from .style import palette
+
+    colours = palette(get_theme(theme))
+    return np.array([to_rgb(colours[s % len(colours)]) for s in range(count)]).reshape(-1, 3)
+
+
+def obstacle_images(obstacles: np.ndarray, box_lengths, walls) -> np.ndarray:
+    """Rows ``(centre..., radius)`` of every copy of the obstacles (centred coordinates)
+    that reaches into the box: shifted by a box length along periodic axes."""
+    obstacles = np.asarray(obstacles, float)
+    box = np.asarray(box_lengths, float)
+    dim = len(box)
+    if obstacles.size == 0:
+        return np.zeros((0, dim + 1))
+    shifts = [(-1, 0, 1) if not wall else (0,) for wall in walls]
+    rows = []
+    for shift in itertools.product(*shifts):
+        moved = obstacles.copy()
+        moved[:, :dim] += np.asarray(shift) * box
+        inside = np.all(np.abs(moved[:, :dim]) - moved[:, dim:] < box / 2, axis=1)
+        rows.append(moved[inside])
+    images = np.concatenate(rows)
+    return images[np.lexsort(images.T[::-1])]
+
+
+def free_mask(obstacles: np.ndarray, box_lengths, shape) -> np.ndarray:
+    """``shape = (rows, columns)`` booleans of a 2D grid (rows downward): whether each
+    bin's centre lies outside every obstacle (``obstacles`` already with their images)."""
+    ny, nx = shape
+    lx, ly = float(box_lengths[0]), float(box_lengths[1])
+    x = ((np.arange(nx) + 0.5) / nx - 0.5) * lx
+    y = (0.5 - (np.arange(ny) + 0.5) / ny) * ly
+    free = np.ones((ny, nx), bool)
+    for cx, cy, r in np.asarray(obstacles, float).reshape(-1, 3):
+        free &= (x[None, :] - cx) ** 2 + (y[:, None] - cy) ** 2 > r * r
+    return free
