@@ -153,7 +153,7 @@ export class Renderer {
     }
     ctx.restore();
     ctx.strokeStyle = WALL;
-    ctx.lineWidth = Math.max(3 * dpr, 0.006 * this.canvas.width);
+    ctx.lineWidth = Math.max(4 * dpr, 0.012 * this.canvas.width);
     ctx.lineCap = "square";
     const w = ctx.lineWidth / 2;  // inside the canvas, over the box's edge
     ctx.beginPath();
