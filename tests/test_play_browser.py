@@ -227,9 +227,10 @@ SCREENS = [(1366, 768), (1920, 1080), (390, 844)]
 
 
 def visible_boxes(page, selector):
-    """``[(description, {x, y, width, height})]`` of the visible elements matching ``selector``."""
+    """``[(description, {x, y, width, height})]`` of the visible elements matching ``selector``
+    (not those in a folded section: Chromium keeps their boxes, hidden)."""
     return page.evaluate("""(selector) => [...document.querySelectorAll(selector)]
-        .filter((el) => el.offsetParent !== null || el.tagName === 'CANVAS')
+        .filter((el) => (el.offsetParent !== null || el.tagName === 'CANVAS') && !el.closest('details:not([open])'))
         .map((el) => {
             const r = el.getBoundingClientRect();
             return [el.id || el.name || el.textContent.trim().slice(0, 20) || el.tagName,
