@@ -185,15 +185,52 @@ def test_ten_thousand_particles_stream_at_30_frames_per_second(page):
     assert max(rates) >= 30
 
 
+def pixel(page, x, y):
+    """The canvas's RGB at a fraction ``(x, y)`` of its width and height from the top left."""
+    return page.evaluate("""([x, y]) => {
+        const c = document.getElementById('flock');
+        return [...c.getContext('2d').getImageData(Math.round(x * c.width), Math.round(y * c.height), 1, 1).data]
+            .slice(0, 3);
+    }""", [x, y])
+
+
+def test_a_click_drops_an_obstacle_that_is_drawn_and_a_second_click_removes_it(page, tmp_path):
+    page.click("#space summary")
+    page.fill("#obstacle-radius", "3")  # a disc of radius 3 in a box of 31.6: 19 % of the width across
+    page.click("#play")  # paused, so that no particle crosses the centre between the frames compared
+    page.wait_for_function("!flockPlay.running")
+    box = page.locator("#flock").bounding_box()
+    page.mouse.click(box["x"] + 0.5 * box["width"], box["y"] + 0.25 * box["height"])
+    page.wait_for_function("flockPlay.model.obstacles && flockPlay.model.obstacles.length === 1")
+    (obstacle,) = page.evaluate("flockPlay.model.obstacles")
+    side = page.evaluate("flockPlay.model.box[0]")
+    assert obstacle["radius"] == 3 and obstacle["centre"] == pytest.approx([side / 2, 0.75 * side], abs=0.1)
+    assert page.inner_text("#space-state") == "1 obstacle"
+    page.wait_for_timeout(300)
+    page.screenshot(path=tmp_path / "obstacle.png")
+    print(f"screenshot: {tmp_path / 'obstacle.png'}")
+    # the disc is drawn where it was dropped: its fill (rgba(92, 102, 124, 0.92) over the background)
+    # at its centre and 0.8 of its radius off it, where no particle is left
+    disc = [round(15 + 0.92 * 77), round(20 + 0.92 * 82), round(32 + 0.92 * 92)]
+    for dx in (0.0, 0.8 * 3 / side, -0.8 * 3 / side):
+        assert pixel(page, 0.5 + dx, 0.25) == pytest.approx(disc, abs=2)
+    page.mouse.click(box["x"] + 0.52 * box["width"], box["y"] + 0.27 * box["height"])  # on it: removed
+    page.wait_for_function("!flockPlay.model.obstacles")
+    page.wait_for_timeout(300)
+    assert pixel(page, 0.5, 0.25) == [15, 20, 32]  # the background again: the flock stayed paused
+    assert page.inner_text("#space-state") == "none"
+
+
 # -- on a projector, a laptop and a phone -------------------------------------------------
 
 SCREENS = [(1366, 768), (1920, 1080), (390, 844)]
 
 
 def visible_boxes(page, selector):
-    """``[(description, {x, y, width, height})]`` of the visible elements matching ``selector``."""
+    """``[(description, {x, y, width, height})]`` of the visible elements matching ``selector``
+    (not those in a folded section: Chromium keeps their boxes, hidden)."""
     return page.evaluate("""(selector) => [...document.querySelectorAll(selector)]
-        .filter((el) => el.offsetParent !== null || el.tagName === 'CANVAS')
+        .filter((el) => (el.offsetParent !== null || el.tagName === 'CANVAS') && !el.closest('details:not([open])'))
         .map((el) => {
             const r = el.getBoundingClientRect();
             return [el.id || el.name || el.textContent.trim().slice(0, 20) || el.tagName,

@@ -767,3 +767,229 @@ def test_flocking_play_serves_on_loopback_and_ctrl_c_says_goodbye(server):
         assert proc.wait(timeout=20) == 0
     rest = proc.stderr.read()
     assert rest == "flocking play: stopped; goodbye\n"
+
+
+# -- the extensions: walls, obstacles, a second species, vision, chirality ----------------
+
+EXT = Model(n=400, density=2.0, noise=0.5, seed=2)  # a box of 14.14
+
+
+def ext_session(model=EXT):
+    s = Session(model)
+    s.take_replies()
+    return s
+
+
+def answers(s, message):
+    """Send ``message`` (a dict), apply it, and return the error lines and the state."""
+    s.handle(json.dumps(message))
+    replies = s.take_replies()
+    errors = [r["message"] for r in replies if r["type"] == "error"]
+    states = [r for r in replies if r["type"] == "state"]
+    return errors, states[-1] if states else None
+
+
+def inside(model, positions):
+    from flocking.state import inside_obstacles
+
+    return inside_obstacles(model, positions)
+
+
+@pytest.mark.parametrize("params, check", [
+    ({"boundary": "wall"}, lambda m: m.walls == (True, True)),
+    ({"boundary": "wall,periodic"}, lambda m: m.walls == (True, False)),
+    ({"boundary": "periodic,wall"}, lambda m: m.walls == (False, True)),
+    ({"vision": math.pi / 4}, lambda m: m.vision == math.pi / 4),
+    ({"chirality": -0.3}, lambda m: m.chirality == -0.3),
+    ({"obstacles": [{"centre": [5.0, 5.0], "radius": 2.0}]}, lambda m: m.obstacles[0].radius == 2.0),
+])
+def test_each_extension_control_is_accepted_and_continues_the_state(params, check):
+    s = ext_session()
+    s.handle('{"type": "step"}')
+    before = s.sim.state
+    errors, state = answers(s, {"type": "set", "params": params})
+    assert errors == [] and check(s.model) and s.model.extended
+    assert state["model"] == {**s.model.to_dict(), "density": s.model.density}
+    after = s.sim.state
+    assert after.step == before.step == 1
+    moved = inside(s.model, before.positions)  # only what a new obstacle covers moves
+    np.testing.assert_array_equal(after.positions[~moved], before.positions[~moved])
+    np.testing.assert_array_equal(after.headings[~moved], before.headings[~moved])
+    s.handle('{"type": "step"}')
+    assert s.sim.state.step == 2 and np.isfinite(s.sim.state.positions).all()
+
+
+@pytest.mark.parametrize("message, expected", [
+    ({"type": "set", "params": {"vision": 4.0}}, "vision: must be a half-angle in (0, pi] (got 4.0)"),
+    ({"type": "set", "params": {"vision": 0}}, "vision: must be a half-angle in (0, pi] (got 0.0)"),
+    ({"type": "set", "params": {"boundary": "walls"}}, "boundary: must be 'periodic', 'wall' or 2 of them"),
+    ({"type": "set", "params": {"chirality": 4.0}}, "chirality: must be at most pi / dt"),
+    ({"type": "set", "params": {"dim": 3, "chirality": 0.2}}, "chirality: must be 0 in 3D"),
+    ({"type": "set", "params": {"species": [{"fraction": 0.5}, {"fraction": 0.6}]}},
+     "species: the fractions must add up to 1 (got 1.1)"),
+    ({"type": "set", "params": {"species": [{"fraction": 0.5}, {"fraction": 0.5, "noise": 7.0}]}},
+     "species: must be in [0, 2*pi] for angular noise (species 'B')"),
+    ({"type": "set", "params": {"species": [{"fraction": 0.5}, {"fraction": 0.5}], "coupling": [[1, -1]]}},
+     "coupling: must be a 2 x 2 matrix"),
+    ({"type": "obstacle", "at": [7.0, 7.0], "radius": 0.4}, "obstacles: must be radii above one step"),
+    ({"type": "obstacle", "at": [7.0, 7.0], "radius": 7.5}, "obstacles: obstacle 0 must be narrower than the box"),
+    ({"type": "obstacle", "at": [7.0, 7.0], "radius": -1}, "obstacles: must be radii that are finite numbers > 0"),
+    ({"type": "obstacle", "at": [7.0, 20.0], "radius": 1.0}, "obstacles: must be centres inside the box"),
+    ({"type": "obstacle", "at": [7.0], "radius": 1.0}, "obstacle.at: must be 2 numbers, a point in the box"),
+    ({"type": "obstacle", "at": [7.0, "x"], "radius": 1.0}, "obstacle.at: must be 2 numbers"),
+    ({"type": "obstacle", "at": [7.0, 7.0]}, "obstacle: missing field 'radius'"),
+    ({"type": "obstacle", "at": [7.0, 7.0], "radius": True}, "obstacle.radius: must be a float"),
+])
+def test_extension_errors_are_one_line_and_change_nothing(message, expected):
+    s = ext_session()
+    before = s.sim.state
+    errors, _ = answers(s, message)
+    assert len(errors) == 1 and errors[0].startswith(expected), errors
+    assert "\n" not in errors[0]
+    assert s.model == EXT and s.sim.state.step == 0
+    np.testing.assert_array_equal(s.sim.state.positions, before.positions)
+
+
+def test_obstacles_that_clash_with_walls_or_each_other_are_refused_in_one_line():
+    s = ext_session()
+    assert answers(s, {"type": "obstacle", "at": [7.0, 7.0], "radius": 3.0})[0] == []
+    errors, _ = answers(s, {"type": "obstacle", "at": [12.0, 7.0], "radius": 1.8})  # a gap of 0.2 < v0 dt
+    assert errors == ["obstacles: obstacles 0 and 1 overlap or are closer than one step (0.5) apart (gap 0.2)"]
+    errors, _ = answers(s, {"type": "obstacle", "at": [1.0, 1.0], "radius": 1.0})  # fine while periodic
+    assert errors == [] and len(s.model.obstacles) == 2
+    errors, _ = answers(s, {"type": "set", "params": {"boundary": "wall"}})  # now 0 from the walls
+    assert errors == [f"obstacles: obstacle 1 must keep at least one step (0.5) from the walls of axis 0 "
+                      f"(centre 1, radius 1, box {EXT.box[0]:g})"]
+    assert s.model.walls == (False, False)
+    errors, _ = answers(s, {"type": "set", "params": {"speed": 3.5}})  # a step longer than a radius
+    assert errors and errors[0].startswith("obstacles: must be radii above one step, speed * dt = 3.5")
+
+
+def test_more_than_the_obstacle_limit_is_refused():
+    s = ext_session(Model(n=400, box=[200.0, 8.0], noise=0.5))
+    for i in range(session_module.MAX_OBSTACLES):
+        assert answers(s, {"type": "obstacle", "at": [3.0 + 6 * i, 4.0], "radius": 1.0})[0] == []
+    errors, _ = answers(s, {"type": "obstacle", "at": [197.0, 4.0], "radius": 1.0})
+    assert errors == ["obstacles: at most 32 in flocking play (got 33); click one to remove it"]
+    assert len(s.model.obstacles) == session_module.MAX_OBSTACLES
+
+
+def test_a_click_drops_an_obstacle_and_a_click_on_it_removes_it():
+    s = ext_session()
+    before = s.sim.state
+    covered = inside(EXT.replace(obstacles=[{"centre": [7.0, 6.0], "radius": 3.0}]), before.positions)
+    assert covered.sum() > 20  # about pi 9 * 2 = 57 particles
+    errors, state = answers(s, {"type": "obstacle", "at": [7.0, 6.0], "radius": 3.0})
+    assert errors == [] and state["model"]["obstacles"] == [{"centre": [7.0, 6.0], "radius": 3.0}]
+    after = s.sim.state
+    assert not inside(s.model, after.positions).any()
+    # the covered particles sit just beyond the rim, on the ray from the centre through them
+    r_old, r_new = before.positions[covered] - (7.0, 6.0), after.positions[covered] - (7.0, 6.0)
+    np.testing.assert_allclose(np.linalg.norm(r_new, axis=1), 3.0 + 1e-6 * 0.5, rtol=1e-12)
+    np.testing.assert_allclose(r_new / 3.0, r_old / np.linalg.norm(r_old, axis=1)[:, None], atol=1e-6)
+    radial = np.einsum("ij,ij->i", after.headings[covered], r_new)
+    assert (radial >= -1e-12).all()  # none heads back in
+    np.testing.assert_array_equal(after.positions[~covered], before.positions[~covered])
+    frame = decode_frame(s.take_frame())
+    assert np.linalg.norm(frame["positions"] - (7.0, 6.0), axis=1).min() > 3.0 - 1e-3
+    for _ in range(20):
+        s.handle('{"type": "step"}')
+    assert not inside(s.model, s.sim.state.positions).any()  # the engine bounces them off
+    # a click inside the obstacle (not at its centre) removes it; the particles stay where they are
+    held = s.sim.state.positions
+    errors, state = answers(s, {"type": "obstacle", "at": [8.5, 7.0], "radius": 1.0})
+    assert errors == [] and state["model"].get("obstacles") is None and s.model.obstacles == ()
+    np.testing.assert_array_equal(s.sim.state.positions, held)
+
+
+def test_an_obstacle_across_a_periodic_edge_is_cleared_and_removed_through_the_edge():
+    s = ext_session()
+    L = EXT.box[0]
+    assert answers(s, {"type": "obstacle", "at": [0.5, 7.0], "radius": 2.0})[0] == []
+    assert not inside(s.model, s.sim.state.positions).any()
+    assert (s.sim.state.positions < L).all() and (s.sim.state.positions >= 0).all()
+    assert answers(s, {"type": "obstacle", "at": [L - 1.0, 7.5], "radius": 1.0})[0] == []  # its image
+    assert s.model.obstacles == ()
+
+
+def test_clear_obstacles_moves_a_particle_at_the_centre_against_its_heading_within_walls():
+    model = Model(n=3, box=10.0, boundary="wall", speed=0.5,
+                  obstacles=[{"centre": [2.0, 5.0], "radius": 1.4}, {"centre": [6.0, 5.0], "radius": 2.0}])
+    x = np.array([[2.0, 5.0], [6.0, 6.9], [9.0, 9.0]])
+    u = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 1.0]])
+    assert session_module.clear_obstacles(model, x, u) == 2
+    np.testing.assert_allclose(x, [[2.0 - 1.4 - 5e-7, 5.0], [6.0, 7.0 + 5e-7], [9.0, 9.0]], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(u, [[-1.0, 0.0], [0.0, 1.0], [0.0, 1.0]])  # outward headings are kept
+    assert not inside(model, x).any() and (x > 0).all() and (x < 10).all()
+
+
+def test_species_sliders_make_the_model_and_each_species_moves_at_its_speed():
+    s = ext_session(EXT.replace(noise=0.0))
+    two = [{"name": "A", "fraction": 0.75}, {"name": "B", "fraction": 0.25, "speed": 1.5, "noise": 2.0}]
+    errors, state = answers(s, {"type": "set", "params": {"species": two, "coupling": [[1, -1], [-1, 1]]}})
+    m = s.model
+    assert errors == [] and m.species_counts == (300, 100) and state["species_counts"] == [300, 100]
+    assert m.species_values("speed") == (0.5, 1.5) and m.species_values("noise") == (0.0, 2.0)
+    assert m.coupling == ((1.0, -1.0), (-1.0, 1.0)) and m.species_names == ("A", "B")
+    assert state["model"]["species"] == two and state["model"]["coupling"] == [[1.0, -1.0], [-1.0, 1.0]]
+    before = s.sim.state
+    s.handle('{"type": "step"}')
+    step = np.linalg.norm((s.sim.state.positions - before.positions + 7.07) % EXT.box[0] - 7.07, axis=1)
+    np.testing.assert_allclose(step[:300], 0.5, rtol=1e-9)  # particles 0..299 are species A
+    np.testing.assert_allclose(step[300:], 1.5, rtol=1e-9)
+    # the global sliders still move species A only where B has its own value
+    assert answers(s, {"type": "set", "params": {"speed": 0.8}})[0] == []
+    assert s.model.species_values("speed") == (0.8, 1.5)
+    # one species again: the 2 x 2 coupling cannot carry over, and goes
+    errors, state = answers(s, {"type": "set", "params": {"species": []}})
+    assert errors == [] and s.model.species == () and s.model.coupling is None and not s.model.extended
+    assert state["species_counts"] == [400]
+
+
+def test_a_new_dimension_keeps_the_walls_of_x_and_y_and_drops_obstacles_and_chirality():
+    s = ext_session()
+    for message in ({"type": "set", "params": {"boundary": "periodic,wall", "chirality": 0.2}},
+                    {"type": "obstacle", "at": [7.0, 7.0], "radius": 2.0}):
+        assert answers(s, message)[0] == []
+    errors, state = answers(s, {"type": "set", "params": {"dim": 3}})
+    assert errors == [] and s.model.dim == 3
+    assert s.model.boundary == ("periodic", "wall", "periodic")
+    assert s.model.obstacles == () and s.model.chirality == 0.0
+    errors, _ = answers(s, {"type": "set", "params": {"boundary": "wall"}})
+    assert errors == [] and s.model.walls == (True, True, True)
+    errors, _ = answers(s, {"type": "set", "params": {"dim": 2}})
+    assert errors == [] and s.model.walls == (True, True)
+
+
+def test_the_extended_step_is_priced_higher_and_a_slow_one_is_refused_naming_its_switch():
+    positions = State.random(EXT).positions
+    plain = step_cost(EXT, positions)[0]
+    extended = step_cost(EXT.replace(vision=2.0), positions)[0]
+    assert extended > 5 * plain  # measured 7 times per particle (flocking/play/budget.py)
+    with_obstacles = step_cost(EXT.replace(vision=2.0, obstacles=[{"centre": [7.0, 7.0], "radius": 1.0}] * 1),
+                               positions)[0]
+    assert with_obstacles == pytest.approx(extended + 25e-9 * EXT.n)
+    s = ext_session(Model(n=180_000, density=2.0, noise=0.5))  # plain: 0.06 s a step
+    errors, _ = answers(s, {"type": "set", "params": {"vision": 2.0}})
+    assert len(errors) == 1 and re.fullmatch(r"vision: one step would take about 0\.\d+ s here .*, or turn "
+                                             r"extensions off", errors[0]), errors
+    assert not s.model.extended
+
+
+def test_extensions_reach_the_page_and_the_exported_config(ws, tmp_path):
+    ws.send_text(json.dumps({"type": "set", "params": {
+        "boundary": "wall", "vision": 2.0, "species": [{"name": "A", "fraction": 0.5},
+                                                       {"name": "B", "fraction": 0.5, "noise": 1.5}],
+        "coupling": [[1, -1], [-1, 1]]}}))
+    state = reply(ws, "state")
+    assert state["model"]["boundary"] == "wall" and state["species_counts"] == [150, 150]
+    ws.send_text('{"type": "obstacle", "at": [6.0, 6.0], "radius": 1.5}')
+    state = reply(ws, "state")
+    assert state["model"]["obstacles"] == [{"centre": [6.0, 6.0], "radius": 1.5}]
+    assert state["limits"]["obstacles"] == session_module.MAX_OBSTACLES
+    ws.send_text('{"type": "config"}')
+    config = reply(ws, "config")["toml"]
+    model = RunConfig.from_toml(config).model  # what flocking run --config would run
+    assert model.walls == (True, True) and model.vision == 2.0 and model.species_counts == (150, 150)
+    assert model.coupling == ((1.0, -1.0), (-1.0, 1.0)) and model.species_values("noise") == (0.5, 1.5)
+    assert [o.to_dict() for o in model.obstacles] == [{"centre": [6.0, 6.0], "radius": 1.5}]

@@ -6,7 +6,10 @@ about ``n * particle + candidates * candidate`` nanoseconds, where ``candidates`
 sum over cells of ``n_c`` times the particles in the block of cells around ``c``
 (:func:`step_cost`). A flock spread evenly over the box at density 2 has about 19
 candidates a particle; all of it packed into one cell has ``n``. :data:`COSTS` holds the
-nanoseconds per particle and per candidate of each kernel.
+nanoseconds per particle and per candidate of each kernel. A model with extensions
+(:attr:`flocking.Model.extended`: walls, obstacles, species, a vision cone, chirality)
+runs the slower step of :mod:`flocking.backends.cpu_extensions`, and each obstacle adds
+:data:`OBSTACLE_COST` per particle.
 
 A tab's memory is the backend's (:meth:`~flocking.backends.cpu.CPUBackend.bytes_needed`)
 plus the copies a frame makes (:func:`session_bytes`). A :class:`Budget` shares a
@@ -37,8 +40,13 @@ from ..model import Model, ParameterError
 #: nanoseconds of one core per particle and per neighbour candidate in a step, by kernel
 #: (``topological``: per particle and neighbour sought, ``k + 1``); measured on the
 #: project's 2-core machine while other programs kept it busy, so rather high. In 3D a
-#: particle costs twice as much.
-COSTS = {"lines": (300.0, 2.0), "generic": (300.0, 25.0), "topological": (250.0, 2.5)}
+#: particle costs twice as much. The extended step (any extension on) was measured the
+#: same way against the plain one, N = 10^4 at density 2 spread out and crowded into
+#: 2 % of the box: 7 times the plain cost per particle and 20 times per candidate.
+COSTS = {"lines": (300.0, 2.0), "generic": (300.0, 25.0), "topological": (250.0, 2.5),
+         "extended": (2500.0, 50.0), "extended topological": (450.0, 15.0)}
+#: nanoseconds per particle and obstacle: each particle is tested against every obstacle
+OBSTACLE_COST = 25.0
 
 #: bytes a particle of a frame costs beyond the backend: the state copied in id order and
 #: the encoder's temporaries (tests/test_play_server.py checks the sum against tracemalloc)
@@ -52,7 +60,14 @@ MiB = 2**20
 
 def kernel(model: Model) -> str:
     """The cpu backend's kernel for ``model``: ``lines`` (metric, at least three cells
-    a side), ``generic`` (metric, a box under ``3R`` along some axis) or ``topological``."""
+    a side), ``generic`` (metric, a box under ``3R`` along some axis), ``topological``,
+    or with any extension ``extended`` and ``extended topological``.
+
+    >>> kernel(Model(n=100, box=10.0)), kernel(Model(n=100, box=10.0, boundary="wall"))
+    ('lines', 'extended')
+    """
+    if model.extended:
+        return "extended" + (" topological" if model.neighbours == "topological" else "")
     if model.neighbours == "topological":
         return "topological"
     return "lines" if np.all(cell_grid(model) >= 3) else "generic"
@@ -66,9 +81,10 @@ def step_cost(model: Model, positions: np.ndarray) -> tuple[float, float]:
     candidates = _candidates(positions, nc, nc / np.asarray(model.box, dtype=np.float64))
     name = kernel(model)
     particle, candidate = COSTS[name]
-    if name == "topological":
+    if name.endswith("topological"):
         particle *= model.k + 1
     particle *= 1 if d == 2 else 2
+    particle += OBSTACLE_COST * len(model.obstacles)
     return (n * particle + candidates * candidate) * 1e-9, candidates / max(n, 1)
 
 

@@ -4,9 +4,15 @@ A page talks to its :class:`Session` in small JSON objects, each with a ``type``
 
 =====================  =================================================================
 ``set``                ``{"type": "set", "params": {"noise": 2.5, ...}}``: model
-                       parameters (:data:`PARAMS`). Changes that keep ``n``, ``density``
+                       parameters (:data:`PARAMS`), the extensions among them
+                       (``boundary``, ``obstacles``, ``species``, ``coupling``,
+                       ``vision``, ``chirality``) under the names of
+                       :class:`~flocking.Model`. Changes that keep ``n``, ``density``
                        and ``dim`` continue from the current state; the others start a
                        new one.
+``obstacle``           ``{"type": "obstacle", "at": [x, y], "radius": 2.0}``: a click on
+                       the flock, in box coordinates: removes the obstacle that holds
+                       ``at``, or else adds one of ``radius`` centred there
 ``play`` ``pause``     run or stop the stream of steps
 ``step``               one step (while paused)
 ``reset``              a new initial state, ``{"type": "reset", "init": "aligned"}``
@@ -27,6 +33,12 @@ latest value of each parameter, and pending steps before a ``reset`` are dropped
 costs their checks (about 0.1 ms each), not a rebuild each. Error replies beyond
 :data:`MAX_ERRORS` per frame are counted in one last error; ``config`` answers are never
 dropped silently.
+
+Particles that a new obstacle covers are moved radially out to just beyond its rim (their
+heading reflected if it pointed inward, as at a bounce): the engine requires every particle
+outside every obstacle, and the model's own checks (obstacles a step apart and a step from
+the walls) make that point free (:func:`clear_obstacles`). A change of dimension keeps the
+walls of x and y (z is periodic) and drops the obstacles and, in 3D, the chirality.
 
 Before a model runs, the cost of its step is estimated from where the particles are
 (:func:`~flocking.play.budget.step_cost`), and again while it runs: a model whose step
@@ -69,6 +81,7 @@ import numba
 import numpy as np
 
 from ..config import RunConfig
+from ..extensions import Obstacle, periodic_distance
 from ..model import Model, ParameterError
 from ..simulation import Simulation
 from ..state import State, initial_speeds
@@ -99,9 +112,13 @@ MAX_CONFIGS = 16
 #: short to pay for waking threads, and far slower when other programs keep the cores busy
 SERIAL_BELOW = 50_000
 
+#: obstacles a page may drop: each costs every particle a test every step
+MAX_OBSTACLES = 32
+
 #: the model parameters a page may set (the box follows from n and density)
 PARAMS = ("dim", "n", "density", "speed", "speeds", "neighbours", "radius", "k", "noise",
-          "noise_type", "alignment", "delay", "dt", "update", "seed")
+          "noise_type", "alignment", "delay", "dt", "update", "seed",
+          "boundary", "obstacles", "species", "coupling", "vision", "chirality")
 #: message type -> {field: (Python types, required)}
 MESSAGES: dict[str, dict[str, tuple[tuple[type, ...], bool]]] = {
     "set": {"params": ((dict,), True)},
@@ -111,10 +128,12 @@ MESSAGES: dict[str, dict[str, tuple[tuple[type, ...], bool]]] = {
     "reset": {"init": ((str,), False)},
     "steps_per_frame": {"value": ((int,), True)},
     "config": {},
+    "obstacle": {"at": ((list,), True), "radius": ((float, int), True)},
 }
 INITS = ("random", "aligned")
 #: the parameter a refusal names, first of those that changed: for a slow step, for memory
-SLOW = ("radius", "k", "n", "density", "dim", "neighbours")
+SLOW = ("radius", "k", "n", "density", "dim", "neighbours", "obstacles", "species", "coupling", "vision",
+        "chirality", "boundary")
 LARGE = ("n", "delay", "dim", "density", "speeds")
 
 HEADER = struct.Struct("<4sBBHIdf3f")
@@ -181,6 +200,9 @@ def check_limits(model: Model) -> Model:
     """
     if model.n > MAX_N:
         raise ParameterError(f"n: must be at most {MAX_N} in flocking play (got {model.n})")
+    if len(model.obstacles) > MAX_OBSTACLES:
+        raise ParameterError(f"obstacles: at most {MAX_OBSTACLES} in flocking play (got {len(model.obstacles)}); "
+                             f"click one to remove it")
     if model.k > MAX_K:
         raise ParameterError(f"k: must be at most {MAX_K} in flocking play (got {model.k})")
     if model.delay > MAX_DELAY:
@@ -210,6 +232,8 @@ def check_step(model: Model, positions: np.ndarray, name: str = "n") -> float:
     seconds, candidates = step_cost(model, positions)
     if seconds > MAX_STEP_SECONDS:
         lower = "k or n" if model.neighbours == "topological" else "radius, n or density"
+        if model.extended:
+            lower += ", or turn extensions off"
         raise ParameterError(f"{name}: one step would take about {seconds:.2g} s here ({candidates:.0f} "
                              f"neighbour candidates a particle; at most {MAX_STEP_SECONDS:g} s in flocking "
                              f"play); lower {lower}")
@@ -309,8 +333,9 @@ class Session:
         """What the page shows in its controls."""
         return {"type": "state", "model": {**self.model.to_dict(), "density": self.model.density},
                 "running": self.running, "steps_per_frame": self.steps_per_frame, "init": self.init,
+                "species_counts": list(self.model.species_counts),
                 "limits": {"n": MAX_N, "k": MAX_K, "delay": MAX_DELAY,
-                           "steps_per_frame": MAX_STEPS_PER_FRAME}}
+                           "steps_per_frame": MAX_STEPS_PER_FRAME, "obstacles": MAX_OBSTACLES}}
 
     def config_toml(self, model: Model | None = None, init: str | None = None) -> str:
         """The parameters as a file that ``flocking run --config`` accepts."""
@@ -334,14 +359,37 @@ class Session:
         self._want_state = True
         if not changes:
             return
+        target = self._target
+        if "species" in changes and "coupling" not in changes and target.coupling is not None:
+            count = len(changes["species"]) if isinstance(changes["species"], list) else -1
+            if count != len(target.coupling):  # a matrix for other species cannot carry over
+                changes = {**changes, "coupling": None}
         if {"n", "density", "dim"} & changes.keys():
-            data = self._target.to_dict()
+            data = target.to_dict()
             del data["box"]
-            data["density"] = self._target.density
+            data["density"] = target.density
+            if changes.get("dim", target.dim) in (2, 3) and changes.get("dim", target.dim) != target.dim:
+                data.update(_carry_across_dimensions(target, changes["dim"]))
             data.update(changes)
             self._target = check_limits(Model(**data))
         else:
-            self._target = check_limits(self._target.replace(**changes))
+            self._target = check_limits(target.replace(**changes))
+
+    def _on_obstacle(self, msg: dict[str, Any]) -> None:
+        target = self._target
+        at = msg["at"]
+        if len(at) != target.dim or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in at):
+            raise ProtocolError(f"obstacle.at: must be {target.dim} numbers, a point in the box (got {at!r})"[:300])
+        at = tuple(float(x) for x in at)
+        obstacles = list(target.obstacles)
+        hit = next((i for i, ob in enumerate(obstacles)
+                    if periodic_distance(at, ob.centre, target.box, target.walls) <= ob.radius), None)
+        if hit is not None:
+            del obstacles[hit]
+        else:
+            obstacles.append(Obstacle(at, msg["radius"]))
+        self._want_state = True
+        self._target = check_limits(target.replace(obstacles=obstacles))
 
     def _check_finite(self, kind: str) -> None:
         target, model = self._target, self.model
@@ -421,7 +469,8 @@ class Session:
             if fresh:
                 state = self._new_state(target, init)
             else:
-                old = self.sim.state
+                old = self.sim.state  # a copy, in particle-id order
+                clear_obstacles(target, old.positions, old.headings)
                 state = State(old.positions, old.headings, initial_speeds(target), old.step)
             seconds = check_step(target, state.positions, next((k for k in SLOW if k in changed), "n"))
             self.budget.reserve(self, session_bytes(target), next((k for k in LARGE if k in changed), "n"))
@@ -479,6 +528,55 @@ class Session:
         frame = encode_frame(state, self.model, self.phi, self.running)
         with self._lock:
             self._frame = frame
+
+
+def _carry_across_dimensions(model: Model, dim: int) -> dict[str, Any]:
+    """What of ``model``'s extensions a change to ``dim`` keeps: the walls of x and y (z
+    periodic); obstacles (their centres have the old dimension) and, in 3D, the chirality
+    (a turn in the plane) are dropped."""
+    boundary = (*model.boundary[:2], "periodic")[:dim]
+    changes: dict[str, Any] = {"boundary": ",".join(boundary), "obstacles": []}
+    if dim == 3:
+        changes["chirality"] = 0.0
+    return changes
+
+
+def clear_obstacles(model: Model, positions: np.ndarray, headings: np.ndarray) -> int:
+    """Move the particles inside ``model``'s obstacles radially out to just beyond the rim
+    (``a + 1e-6 v0 dt`` from the centre; a particle at the centre moves against its
+    heading), reflecting a heading that points inward, as a bounce does. Changes the
+    arrays in place and returns how many particles moved.
+
+    The model guarantees that obstacles are a step apart and a step from the walls, so
+    the new place is outside every obstacle and inside the walls.
+
+    >>> from flocking import Model
+    >>> model = Model(n=2, box=10.0, obstacles=[{"centre": [5.0, 5.0], "radius": 2.0}])
+    >>> x, u = np.array([[5.5, 5.0], [9.0, 9.0]]), np.array([[-1.0, 0.0], [1.0, 0.0]])
+    >>> clear_obstacles(model, x, u), x[0].round(5).tolist(), u[0].tolist()  # out to the right, turned round
+    (1, [7.0, 5.0], [1.0, 0.0])
+    """
+    box = np.asarray(model.box, dtype=np.float64)
+    periodic = ~np.asarray(model.walls)
+    margin = 1e-6 * model.max_speed * model.dt
+    moved = 0
+    for ob in model.obstacles:
+        centre = np.asarray(ob.centre)
+        r = positions - centre
+        r = np.where(periodic, r - box * np.round(r / box), r)
+        dist = np.sqrt(np.einsum("ij,ij->i", r, r))
+        inside = np.flatnonzero(dist < ob.radius)
+        if not inside.size:
+            continue
+        u, dist = headings[inside], dist[inside, None]
+        normal = np.where(dist > 0.0, r[inside] / np.where(dist > 0.0, dist, 1.0), -u)
+        x = centre + (ob.radius + margin) * normal
+        x = np.where(periodic, np.mod(x, box), x)
+        positions[inside] = np.where(periodic & (x >= box), 0.0, x)
+        dot = np.einsum("ij,ij->i", u, normal)[:, None]
+        headings[inside] = np.where(dot < 0.0, u - 2.0 * dot * normal, u)
+        moved += inside.size
+    return moved
 
 
 # -- frames ------------------------------------------------------------------------------

@@ -130,6 +130,7 @@ function sliderValue(input) {
 function showValue(input) {
   const out = document.querySelector(`output[for="${input.id}"]`);
   if (out) out.textContent = Number.isInteger(Number(input.step)) ? input.value : Number(input.value).toFixed(2);
+  if (out && input.id === "vision") out.textContent += "°";
 }
 
 for (const input of document.querySelectorAll("input[data-param]")) {
@@ -152,12 +153,55 @@ for (const radio of document.querySelectorAll('input[type="radio"]')) {
   radio.addEventListener("change", () => {
     if (!radio.checked) return;
     if (radio.name === "dim") setParams({ dim: Number(radio.value) });
+    else if (radio.name === "coupling") setParams(speciesParams());
     else if (radio.name === "noise_type") {
       const noise = Math.min(parseFloat($("noise").value), NOISE_MAX[radio.value]);
-      setParams({ noise_type: radio.value, noise });
+      $("b-noise").value = Math.min(parseFloat($("b-noise").value), NOISE_MAX[radio.value]);
+      setParams({ noise_type: radio.value, noise, ...speciesParams() });
     } else setParams({ [radio.name]: radio.value });
   });
 }
+
+// -- the extensions: walls, obstacles, a second species, vision and chirality --------------
+
+// walls: one switch per axis (z only in 3D); the server takes "periodic,wall,..."
+function boundaryParam() {
+  const axes = model && model.dim === 3 ? ["x", "y", "z"] : ["x", "y"];
+  return axes.map((a) => ($(`wall-${a}`).checked ? "wall" : "periodic")).join(",");
+}
+for (const a of ["x", "y", "z"]) $(`wall-${a}`).addEventListener("change", () => setParams({ boundary: boundaryParam() }));
+
+// species B with its own fraction, speed and noise; the coupling sign J_AB = J_BA = +1 or -1
+function speciesParams() {
+  if (!$("species-on").checked) return { species: [], coupling: null };
+  const f = parseFloat($("b-fraction").value);
+  const sign = Number(document.querySelector('input[name="coupling"]:checked').value);
+  return {
+    species: [{ name: "A", fraction: Math.round((1 - f) * 100) / 100 },
+              { name: "B", fraction: f, speed: parseFloat($("b-speed").value), noise: parseFloat($("b-noise").value) }],
+    coupling: [[1, sign], [sign, 1]],
+  };
+}
+$("species-on").addEventListener("change", () => setParams(speciesParams()));
+for (const input of document.querySelectorAll("input[data-species]")) {
+  input.addEventListener("input", () => { showValue(input); if ($("species-on").checked) setParams(speciesParams()); });
+}
+
+// the vision slider is in degrees, the model's half-angle in radians
+$("vision").addEventListener("input", () => {
+  showValue($("vision"));
+  const degrees = parseInt($("vision").value, 10);
+  setParams({ vision: degrees >= 180 ? Math.PI : (degrees * Math.PI) / 180 });
+});
+
+// obstacles: a click on the 2D flock drops one there, or removes the one clicked
+$("obstacle-radius").addEventListener("input", () => showValue($("obstacle-radius")));
+flockCanvas.addEventListener("click", (e) => {
+  if (!drawn || drawn.dim !== 2 || document.body.classList.contains("offline")) return;
+  const at = renderer.toBox(drawn, e.clientX, e.clientY);
+  if (at) send({ type: "obstacle", at, radius: parseFloat($("obstacle-radius").value) });
+});
+$("clear-obstacles").addEventListener("click", () => setParams({ obstacles: [] }));
 
 $("play").addEventListener("click", () => send({ type: stats.running ? "pause" : "play" }));
 $("step").addEventListener("click", () => send({ type: "step" }));
@@ -185,6 +229,7 @@ function sync(reply) {
     const radio = document.querySelector(`input[name="${name}"][value="${m[name]}"]`);
     if (radio) radio.checked = true;
   }
+  syncExtensions(reply);
   for (const el of document.querySelectorAll(".metric")) el.classList.toggle("hidden", m.neighbours !== "metric");
   for (const el of document.querySelectorAll(".topological")) el.classList.toggle("hidden", m.neighbours !== "topological");
   $("play").textContent = reply.running ? "Pause" : "Play";
@@ -198,6 +243,49 @@ function sync(reply) {
   const side = Math.min(...m.box);
   $("radius-hint").textContent = `how far a particle sees: the box is ${fewDigits(side / m.radius)} R wide`;
   $("speed-hint").textContent = `distance moved per step: crossing the box takes ${fewDigits(side / (m.speed * m.dt))} steps`;
+}
+
+// the extension controls and the drawing's walls, obstacles and species colours
+function syncExtensions(reply) {
+  const m = reply.model, active = document.activeElement;
+  const set = (id, value) => { const el = $(id); if (el !== active || !el.matches(":active")) { el.value = value; showValue(el); } };
+  const three = m.dim === 3;
+  let walls = (m.boundary || "periodic").split(",");
+  if (walls.length === 1) walls = Array(m.dim).fill(walls[0]);
+  walls = walls.map((w) => w === "wall");
+  ["x", "y", "z"].forEach((a, i) => { $(`wall-${a}`).checked = Boolean(walls[i]); });
+  const obstacles = m.obstacles || [];
+  const species = m.species || [];
+  const two = species.length === 2;
+  $("species-on").checked = two;
+  if (two) {
+    const b = species[1];
+    set("b-fraction", b.fraction ?? reply.species_counts[1] / m.n);
+    set("b-speed", b.speed ?? m.speed);
+    set("b-noise", b.noise ?? m.noise);
+    const sign = m.coupling && m.coupling[0][1] < 0 ? "-1" : "1";
+    document.querySelector(`input[name="coupling"][value="${sign}"]`).checked = true;
+  }
+  $("b-noise").max = NOISE_MAX[m.noise_type];
+  for (const el of document.querySelectorAll("#second input[data-species], #second input[name='coupling']")) el.disabled = !two;
+  const vision = m.vision ?? Math.PI;
+  set("vision", Math.round((vision * 180) / Math.PI));
+  set("chirality", m.chirality ?? 0);
+  for (const el of document.querySelectorAll(".two-d")) el.classList.toggle("hidden", three);
+  for (const el of document.querySelectorAll(".three-d")) el.classList.toggle("hidden", !three);
+  // what each folded section holds, readable while it is closed
+  const named = ["x", "y", "z"].filter((a, i) => walls[i]);
+  const space = [named.length ? `walls ${named.join(", ")}` : "",
+                 obstacles.length ? `${obstacles.length} obstacle${obstacles.length > 1 ? "s" : ""}` : ""];
+  $("space-state").textContent = space.filter(Boolean).join(" · ") || "none";
+  $("second-state").textContent = two ? `${reply.species_counts[1]} of ${m.n}` : "off";
+  const sight = [vision < Math.PI ? `${Math.round((vision * 180) / Math.PI)}°` : "", m.chirality ? `ω ${m.chirality}` : ""];
+  $("sight-state").textContent = sight.filter(Boolean).join(" · ") || "all round";
+  renderer.scene = { walls, obstacles, counts: two ? reply.species_counts : null };
+  $("legend").classList.toggle("hidden", !two);
+  document.querySelector(".wheel").classList.toggle("hidden", two);
+  flockCanvas.classList.toggle("drop", !three);
+  if (drawn) latest = latest || drawn;  // redraw with the new walls and obstacles
 }
 
 function fewDigits(x) { return x >= 10 ? Math.round(x).toString() : x.toFixed(1); }

@@ -15,6 +15,16 @@ const BG = rgba([15, 20, 32]);
 const heads = Array.from({ length: LAYERS * HUES }, (_, k) => rgba(palette[k % HUES], 1 - 0.3 * Math.floor(k / HUES)));
 const tails = Array.from({ length: LAYERS * HUES }, (_, k) => rgba(palette[k % HUES], 0.55 * (1 - 0.3 * Math.floor(k / HUES))));
 
+// two species: Okabe and Ito's orange and sky blue (told apart with every common colour
+// blindness), by depth layer like the hues
+const SPECIES = [[230, 159, 0], [86, 180, 233]];
+export const SPECIES_CSS = SPECIES.map(([r, g, b]) => `rgb(${r},${g},${b})`);
+const speciesHeads = Array.from({ length: LAYERS * 2 }, (_, k) => rgba(SPECIES[k % 2], 1 - 0.3 * Math.floor(k / 2)));
+const speciesTails = Array.from({ length: LAYERS * 2 }, (_, k) => rgba(SPECIES[k % 2], 0.55 * (1 - 0.3 * Math.floor(k / 2))));
+const WALL = "rgba(236, 240, 248, 0.95)";
+const OBSTACLE = "rgba(92, 102, 124, 0.92)";
+const OBSTACLE_EDGE = "rgba(222, 228, 240, 0.95)";
+
 function hslToRgb(h, s, l) {
   const f = (k) => {
     const t = (k + h * 12) % 12;
@@ -31,6 +41,35 @@ export class Renderer {
     this.pitch = 0.45;
     this.image = null;
     this.order = null;
+    // walls per axis, obstacles ({centre, radius}) and species counts, from the server's state
+    this.scene = { walls: [], obstacles: [], counts: null };
+  }
+
+  // colour tables: by species when there are two and they add up to the frame's N, else by heading
+  colours(n) {
+    const counts = this.scene.counts;
+    if (counts && counts.length === 2 && counts[0] + counts[1] === n) {
+      return { kinds: 2, heads: speciesHeads, tails: speciesTails, first: counts[0] };
+    }
+    return { kinds: HUES, heads, tails, first: -1 };
+  }
+
+  // 2D: where the box is on the canvas, in canvas pixels
+  layout2d(frame) {
+    const { canvas } = this;
+    const [lx, ly] = frame.box;
+    const scale = Math.min(canvas.width / lx, canvas.height / ly);
+    return { lx, ly, scale, x0: (canvas.width - lx * scale) / 2, y0: (canvas.height + ly * scale) / 2 };
+  }
+
+  // the box coordinates [x, y] under a mouse event's client point in 2D, or null outside the box
+  toBox(frame, clientX, clientY) {
+    const rect = this.canvas.getBoundingClientRect();
+    const px = ((clientX - rect.left) * this.canvas.width) / rect.width;
+    const py = ((clientY - rect.top) * this.canvas.height) / rect.height;
+    const { lx, ly, scale, x0, y0 } = this.layout2d(frame);
+    const x = (px - x0) / scale, y = (y0 - py) / scale;
+    return x >= 0 && x <= lx && y >= 0 && y <= ly ? [x, y] : null;
   }
 
   draw(frame) {
@@ -70,23 +109,61 @@ export class Renderer {
   }
 
   draw2d(frame) {
-    const { canvas } = this;
     const { n, positions: p, headings: h } = frame;
-    const [lx, ly] = frame.box;
-    const scale = Math.min(canvas.width / lx, canvas.height / ly);
-    const x0 = (canvas.width - lx * scale) / 2, y0 = (canvas.height + ly * scale) / 2;
+    const { lx, ly, scale, x0, y0 } = this.layout2d(frame);
     const sx = (lx * scale) / 65536, sy = (ly * scale) / 65536;
     const dpr = window.devicePixelRatio || 1;
     const len = Math.max(2, Math.min(10 * dpr, 0.7 * scale));
     const thick = len >= 4 * dpr && n <= 100000;
     const cos = new Float32Array(256), sin = new Float32Array(256);
     for (let a = 0; a < 256; a++) { cos[a] = len * Math.cos(a * Math.PI / 128); sin[a] = len * Math.sin(a * Math.PI / 128); }
+    const pal = this.colours(n);
     for (let i = 0; i < n; i++) {
       const x = x0 + (p[2 * i] + 0.5) * sx, y = y0 - (p[2 * i + 1] + 0.5) * sy;
-      const c = (h[i] * HUES) >> 8;
-      this.segment(x - cos[h[i]], y + sin[h[i]], x, y, tails[c], heads[c], thick);
+      const c = pal.first < 0 ? (h[i] * HUES) >> 8 : Number(i >= pal.first);
+      this.segment(x - cos[h[i]], y + sin[h[i]], x, y, pal.tails[c], pal.heads[c], thick);
     }
     this.ctx.putImageData(this.image, 0, 0);
+    this.scenery2d(frame);
+  }
+
+  // obstacles as discs (with their images across periodic sides), walls as bright lines
+  scenery2d(frame) {
+    const { ctx } = this;
+    const { lx, ly, scale, x0, y0 } = this.layout2d(frame);
+    const { walls, obstacles } = this.scene;
+    const dpr = window.devicePixelRatio || 1;
+    ctx.save();
+    ctx.beginPath();
+    ctx.rect(x0, y0 - ly * scale, lx * scale, ly * scale);
+    ctx.clip();
+    ctx.fillStyle = OBSTACLE;
+    ctx.strokeStyle = OBSTACLE_EDGE;
+    ctx.lineWidth = 1.5 * dpr;
+    const shifts = (wall, length) => (wall ? [0] : [-length, 0, length]);
+    for (const { centre, radius } of obstacles) {
+      for (const dx of shifts(walls[0], lx)) {
+        for (const dy of shifts(walls[1], ly)) {
+          ctx.beginPath();
+          ctx.arc(x0 + (centre[0] + dx) * scale, y0 - (centre[1] + dy) * scale, radius * scale, 0, 2 * Math.PI);
+          ctx.fill();
+          ctx.stroke();
+        }
+      }
+    }
+    ctx.restore();
+    ctx.strokeStyle = WALL;
+    ctx.lineWidth = Math.max(4 * dpr, 0.012 * this.canvas.width);
+    ctx.lineCap = "square";
+    const w = ctx.lineWidth / 2;  // inside the canvas, over the box's edge
+    ctx.beginPath();
+    if (walls[0]) {
+      for (const x of [x0 + w, x0 + lx * scale - w]) { ctx.moveTo(x, y0); ctx.lineTo(x, y0 - ly * scale); }
+    }
+    if (walls[1]) {
+      for (const y of [y0 - w, y0 - ly * scale + w]) { ctx.moveTo(x0, y); ctx.lineTo(x0 + lx * scale, y); }
+    }
+    ctx.stroke();
   }
 
   // 3D: the box centred at the origin, turned by yaw (about the vertical z axis) then pitch
@@ -106,6 +183,7 @@ export class Renderer {
       out[0] = w2 + (focal * x1) / d;
       out[1] = h2 - (focal * up) / d;
       out[2] = (depth + radius) / (2 * radius); // 0 near .. 1 far
+      out[3] = focal / d;                       // pixels per unit length at that depth
       return out;
     };
   }
@@ -115,45 +193,64 @@ export class Renderer {
     const { n, positions: p, headings: h } = frame;
     const [lx, ly, lz] = frame.box;
     const project = this.projector(frame);
-    const a = [0, 0, 0], b = [0, 0, 0];
+    const a = [0, 0, 0, 0], b = [0, 0, 0, 0];
     const len = 0.035 * Math.max(lx, ly, lz);
     const cx = lx / 65536, cy = ly / 65536, cz = lz / 65536;
     const seg = new Float32Array(4 * n);
     const colour = new Uint16Array(n);
+    const pal = this.colours(n), K = pal.kinds;
     for (let i = 0; i < n; i++) {
       const x = (p[3 * i] + 0.5) * cx, y = (p[3 * i + 1] + 0.5) * cy, z = (p[3 * i + 2] + 0.5) * cz;
       const az = h[2 * i] * Math.PI / 128, uz = h[2 * i + 1] / 127.5 - 1, rho = Math.sqrt(Math.max(0, 1 - uz * uz));
       project(x, y, z, a);
       project(x - len * rho * Math.cos(az), y - len * rho * Math.sin(az), z - len * uz, b);
       seg[4 * i] = b[0]; seg[4 * i + 1] = b[1]; seg[4 * i + 2] = a[0]; seg[4 * i + 3] = a[1];
-      colour[i] = Math.min(LAYERS - 1, Math.floor(a[2] * LAYERS)) * HUES + ((h[2 * i] * HUES) >> 8);
+      const kind = pal.first < 0 ? (h[2 * i] * HUES) >> 8 : Number(i >= pal.first);
+      colour[i] = Math.min(LAYERS - 1, Math.floor(a[2] * LAYERS)) * K + kind;
     }
     // far layers first, so that near particles cover them
-    this.buckets((i) => LAYERS * HUES - 1 - colour[i], n, LAYERS * HUES);
+    this.buckets((i) => LAYERS * K - 1 - colour[i], n, LAYERS * K);
     const thick = n <= 100000;
     for (let s = 0; s < n; s++) {
       const i = this.order[s], c = colour[i];
-      this.segment(seg[4 * i], seg[4 * i + 1], seg[4 * i + 2], seg[4 * i + 3], tails[c], heads[c], thick && c < HUES * (LAYERS - 1));
+      this.segment(seg[4 * i], seg[4 * i + 1], seg[4 * i + 2], seg[4 * i + 3], pal.tails[c], pal.heads[c], thick && c < K * (LAYERS - 1));
     }
     ctx.putImageData(this.image, 0, 0);
-    ctx.strokeStyle = "rgba(200, 210, 230, 0.35)";
-    ctx.lineWidth = 1;
-    ctx.beginPath();
-    const sides = [lx, ly, lz];
-    for (let axis = 0; axis < 3; axis++) {   // the 12 edges: 4 along each axis
-      for (let corner = 0; corner < 4; corner++) {
-        const from = [0, 0, 0];
-        from[(axis + 1) % 3] = (corner & 1) * sides[(axis + 1) % 3];
-        from[(axis + 2) % 3] = (corner >> 1) * sides[(axis + 2) % 3];
-        const to = from.slice();
-        to[axis] = sides[axis];
-        project(from[0], from[1], from[2], a);
-        project(to[0], to[1], to[2], b);
-        ctx.moveTo(a[0], a[1]);
-        ctx.lineTo(b[0], b[1]);
-      }
+    // obstacles: the outline of each sphere as seen (a circle of the projected radius)
+    ctx.strokeStyle = OBSTACLE_EDGE;
+    ctx.fillStyle = "rgba(92, 102, 124, 0.35)";
+    ctx.lineWidth = 1.5 * (window.devicePixelRatio || 1);
+    for (const { centre, radius } of this.scene.obstacles) {
+      if (centre.length !== 3) continue;
+      project(centre[0], centre[1], centre[2], a);
+      ctx.beginPath();
+      ctx.arc(a[0], a[1], radius * a[3], 0, 2 * Math.PI);
+      ctx.fill();
+      ctx.stroke();
     }
-    ctx.stroke();
+    // the box's edges; those of a wall's faces bright and thick
+    const walls = this.scene.walls;
+    const sides = [lx, ly, lz];
+    for (const bright of [false, true]) {
+      ctx.strokeStyle = bright ? WALL : "rgba(200, 210, 230, 0.35)";
+      ctx.lineWidth = bright ? 2.5 * (window.devicePixelRatio || 1) : 1;
+      ctx.beginPath();
+      for (let axis = 0; axis < 3; axis++) {   // the 12 edges: 4 along each axis
+        if (Boolean(walls[(axis + 1) % 3] || walls[(axis + 2) % 3]) !== bright) continue;
+        for (let corner = 0; corner < 4; corner++) {
+          const from = [0, 0, 0];
+          from[(axis + 1) % 3] = (corner & 1) * sides[(axis + 1) % 3];
+          from[(axis + 2) % 3] = (corner >> 1) * sides[(axis + 2) % 3];
+          const to = from.slice();
+          to[axis] = sides[axis];
+          project(from[0], from[1], from[2], a);
+          project(to[0], to[1], to[2], b);
+          ctx.moveTo(a[0], a[1]);
+          ctx.lineTo(b[0], b[1]);
+        }
+      }
+      ctx.stroke();
+    }
   }
 
   // turn the 3D view by dragging
