@@ -237,8 +237,10 @@ class _Order(Analysis):
         steps, phi, n, model = self._series(system, n)
         name = type(self).__name__
         if phi.size < 2:
-            raise ParameterError(f"system: holds {phi.size} value{'' if phi.size == 1 else 's'} of the "
-                                 f"{self._what()}; statistics need at least 2 (a run of at least one step)")
+            of = "" if self.species is None else f" of species {self.species}"
+            raise ParameterError(f"system: holds {phi.size} {self._column.replace('_', ' ')} "
+                                 f"value{'' if phi.size == 1 else 's'}{of}; statistics need at least 2 (a run of "
+                                 "at least one step)")
         if not np.all(np.isfinite(phi)):
             raise ParameterError(f"system: the {self._what()} series holds non-finite values")
         if self.start == "auto":
@@ -541,7 +543,7 @@ class PerSpecies(Analysis):
             colour = colours[i % (len(colours) - 1)]
             symbol = order._symbol_of()
             ax.plot(self.times, order.series, lw=0.8, color=colour, alpha=0.85,
-                    label=rf"${symbol} = {format_value(order.mean, order.mean_error)}$")
+                    label=rf"$\langle {symbol}\rangle = {format_value(order.mean, order.mean_error)}$")
             ax.plot(w[[0, -1]], [order.mean, order.mean], color=colour, lw=1.4, ls="--")
         style.label_axes(ax, "time", self.quantity._axis_label)
         legend(ax, theme)
