@@ -177,8 +177,8 @@ def from_frame(frame: Frame, typeid=None, types=None) -> Snapshot:
     ``types`` where it has them, else those given."""
     v = frame.velocities[:, : frame.dim].astype(np.float64)
     headings = v if np.any(v) else None
-    typeid = getattr(frame, "typeid", typeid)
-    types = getattr(frame, "types", types)
+    if getattr(frame, "typeid", None) is not None:  # frames that carry their types
+        typeid, types = frame.typeid, frame.types
     return Snapshot(frame.step, frame.box_lengths, frame.positions.astype(np.float64), headings,
                     -frame.box_lengths / 2, typeid, types)
 

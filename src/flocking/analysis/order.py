@@ -1,4 +1,5 @@
-"""Polar order: its time series and its moments over a window, with honest error bars.
+"""Order parameters: the polar order (of the flock or of one species) and the nematic
+order, their time series and their moments over a window, with honest error bars.
 
 Successive values of ``phi`` are correlated, so the error of a time average is not
 ``std / sqrt(T)``. The error of ``<phi>`` uses the integrated autocorrelation time

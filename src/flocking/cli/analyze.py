@@ -243,7 +243,10 @@ def recorded(name: str, model, obs: str | None, gsd_path: str | None) -> bool:
         return "nematic_order" in columns
     if any(c.startswith("polar_order_") for c in columns):
         return True
-    return gsd_path is not None and len(order.species_names(gsd_path)) > 1
+    try:
+        return gsd_path is not None and len(order.species_names(gsd_path)) > 1
+    except ParameterError:  # an unreadable file: reported once it is opened
+        return False
 
 
 def columns_of(name: str, obj, columns) -> list:
