@@ -115,8 +115,8 @@ def test_inputs_agree(tmp_path):
 
 
 def test_results_before_compute_and_read_only():
-    for cls in (fa.PolarOrder, fa.NumberFluctuations, fa.VelocityCorrelation, fa.DensityProfile,
-                fa.Clusters, fa.BoxCounting, fa.MeanSquareDisplacement):
+    for cls in (fa.PolarOrder, fa.NematicOrder, fa.PerSpecies, fa.NumberFluctuations, fa.VelocityCorrelation,
+                fa.DensityProfile, fa.Clusters, fa.BoxCounting, fa.MeanSquareDisplacement):
         obj = cls()
         name = cls._keys[1]
         with pytest.raises(fa.NotComputedError, match="compute"):
@@ -133,6 +133,7 @@ def test_results_before_compute_and_read_only():
 
 @pytest.mark.parametrize("make", [
     lambda: fa.PolarOrder(start=-1), lambda: fa.PolarOrder(start=2.5), lambda: fa.PolarOrder(start="x"),
+    lambda: fa.NematicOrder(start=-1), lambda: fa.NematicOrder(dt=0), lambda: fa.PolarOrder(species=""),
     lambda: fa.NumberFluctuations(sizes=[-1]), lambda: fa.NumberFluctuations(fit_range=(5, 1)),
     lambda: fa.NumberFluctuations(frames=0), lambda: fa.VelocityCorrelation(r_max=0),
     lambda: fa.VelocityCorrelation(method="fft"), lambda: fa.VelocityCorrelation(r_max=1, dr=2),

@@ -19,10 +19,10 @@ from .clusters import Clusters
 from .correlation import VelocityCorrelation
 from .fluctuations import NumberFluctuations
 from .msd import MeanSquareDisplacement
-from .order import PolarOrder
+from .order import NematicOrder, PerSpecies, PolarOrder
 from .profile import DensityProfile
 
 __all__ = [
     "BoxCounting", "Clusters", "DensityProfile", "MeanSquareDisplacement", "NotComputedError",
-    "NumberFluctuations", "PolarOrder", "VelocityCorrelation",
+    "NematicOrder", "NumberFluctuations", "PerSpecies", "PolarOrder", "VelocityCorrelation",
 ]

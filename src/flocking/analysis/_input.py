@@ -34,17 +34,20 @@ from ..trajectory import Frame, Trajectory, _frame
 class Snapshot:
     """One frame as the analysis sees it: ``step``, ``box`` (d,), ``positions`` (N, d) in
     ``[0, L)`` as float64, unit ``headings`` (N, d) or ``None`` when no velocity is known,
-    and ``origin`` (d,): where the input's coordinates put the box's lower corner (the
-    input's position ``x`` is ``origin + positions``, modulo the box)."""
+    ``origin`` (d,): where the input's coordinates put the box's lower corner (the input's
+    position ``x`` is ``origin + positions``, modulo the box), and the particle types
+    (species) when the input has them: ``types`` (names) and ``typeid`` (N,), else ``None``."""
 
-    __slots__ = ("step", "box", "positions", "headings", "origin")
+    __slots__ = ("step", "box", "positions", "headings", "origin", "typeid", "types")
 
-    def __init__(self, step: int, box, positions, headings=None, origin=None):
+    def __init__(self, step: int, box, positions, headings=None, origin=None, typeid=None, types=None):
         self.step = int(step)
         self.box = np.asarray(box, dtype=np.float64)
         self.origin = np.zeros_like(self.box) if origin is None else np.asarray(origin, dtype=np.float64)
         self.positions = wrap(np.asarray(positions, dtype=np.float64) - self.origin, self.box)
         self.headings = None if headings is None else unit(headings)
+        self.typeid = None if typeid is None else np.asarray(typeid, dtype=np.int64)
+        self.types = None if types is None else tuple(str(t) for t in types)
 
     @property
     def dim(self) -> int:
@@ -58,6 +61,15 @@ class Snapshot:
         if self.headings is None:
             raise ParameterError(f"system: {who} needs velocities, and this frame has none")
         return self.headings
+
+    def members(self, species: str) -> np.ndarray:
+        """Boolean mask of the particles of type ``species`` (a name of :attr:`types`)."""
+        if self.types is None or self.typeid is None:
+            raise ParameterError("system: holds no particle types, so no species (a GSD file's particles/types "
+                                 "and particles/typeid)")
+        if species not in self.types:
+            raise ParameterError(f"species: must be one of {', '.join(self.types)} (got {species!r})")
+        return self.typeid == self.types.index(species)
 
 
 def wrap(x: np.ndarray, box: np.ndarray) -> np.ndarray:
@@ -160,11 +172,22 @@ def from_box_points(box, points, velocities=None, step: int = 0) -> Snapshot:
     return Snapshot(step, lengths, points, headings, -lengths / 2 if centred else None)
 
 
-def from_frame(frame: Frame) -> Snapshot:
+def from_frame(frame: Frame, typeid=None, types=None) -> Snapshot:
+    """A snapshot of a :class:`flocking.Frame`; its types are the frame's ``typeid`` and
+    ``types`` where it has them, else those given."""
     v = frame.velocities[:, : frame.dim].astype(np.float64)
     headings = v if np.any(v) else None
+    if getattr(frame, "typeid", None) is not None:  # frames that carry their types
+        typeid, types = frame.typeid, frame.types
     return Snapshot(frame.step, frame.box_lengths, frame.positions.astype(np.float64), headings,
-                    -frame.box_lengths / 2)
+                    -frame.box_lengths / 2, typeid, types)
+
+
+def from_gsd_frame(frame) -> Snapshot:
+    """A snapshot of a ``gsd.hoomd.Frame``, with its particle types (``particles/typeid``
+    is read from frame 0 where later frames leave it out, as gsd does)."""
+    particles = frame.particles
+    return from_frame(_frame(frame), particles.typeid, particles.types)
 
 
 def _from_any_frame(item) -> Snapshot:
@@ -173,7 +196,7 @@ def _from_any_frame(item) -> Snapshot:
     if isinstance(item, Frame):
         return from_frame(item)
     if hasattr(item, "configuration") and hasattr(item, "particles"):  # a gsd.hoomd.Frame
-        return from_frame(_frame(item))
+        return from_gsd_frame(item)
     if isinstance(item, tuple) and len(item) in (2, 3):
         return from_box_points(*item)
     raise ParameterError(f"system: cannot read a frame from {type(item).__name__}; give a trajectory, "
@@ -212,8 +235,8 @@ def as_frames(system) -> Frames:
         except Exception as err:  # gsd raises several kinds for a file that is not GSD
             raise ParameterError(f"system: {path!r} is not a readable GSD file ({err})") from None
         return as_frames(traj)
-    if isinstance(system, Trajectory):
-        return Frames(system, from_frame, _gsd_steps(system._file), _stored_model(system))
+    if isinstance(system, Trajectory):  # read through its gsd file, which holds the particle types
+        return Frames(system._file, from_gsd_frame, _gsd_steps(system._file), _stored_model(system))
     if hasattr(system, "file") and hasattr(system, "__getitem__") and hasattr(system, "__len__"):
         return Frames(system, _from_any_frame, _gsd_steps(system))  # a gsd.hoomd trajectory
     if _is_box_points(system) or _looks_like_frame(system):

@@ -18,13 +18,21 @@ import click
 from ..files import replace_atomically
 from ..model import ParameterError
 
-QUANTITIES = ("polar", "fluctuations", "correlation", "profile", "clusters", "boxcount", "msd")
+QUANTITIES = ("polar", "species", "nematic", "fluctuations", "correlation", "profile", "clusters", "boxcount", "msd")
+#: quantities measured by default only when the run records them (several species; nematic alignment)
+OPTIONAL = ("species", "nematic")
+#: quantities that read observables.csv (every step) when the run folder has one
+SERIES = ("polar", "species", "nematic")
 
 #: quantity -> (file stem, figure title, CSV columns as (header, attribute)); a header
 #: ``None`` is named for the profile's axis
 OUTPUTS = {
     "polar": ("polar_order_window", "Polar order",
               [("step", "steps"), ("time", "times"), ("polar_order", "series"), ("in_window", "window")]),
+    "species": ("polar_order_species", "Polar order per species",
+                [("step", "steps"), ("time", "times"), ("in_window", "window")]),
+    "nematic": ("nematic_order_window", "Nematic order",
+                [("step", "steps"), ("time", "times"), ("nematic_order", "series"), ("in_window", "window")]),
     "fluctuations": ("number_fluctuations", "Number fluctuations",
                      [("side", "sizes"), ("mean_n", "mean"), ("dn", "std"), ("fitted", "fitted")]),
     "correlation": ("velocity_correlation", "Velocity correlation",
@@ -41,6 +49,8 @@ OUTPUTS = {
 
 
 def parse_only(text: str | None) -> list[str]:
+    """The quantities asked for; every one when ``text`` is empty (:data:`OPTIONAL` ones are
+    then kept only where the run records them: see :func:`recorded`)."""
     if not text:
         return list(QUANTITIES)
     chosen = [t.strip() for t in text.split(",") if t.strip()]
@@ -69,6 +79,10 @@ def build(name: str, model, start, frames, options: dict):
 
     if name == "polar":
         return fa.PolarOrder(start=start)
+    if name == "species":
+        return fa.PerSpecies(fa.PolarOrder(start=start))
+    if name == "nematic":
+        return fa.NematicOrder(start=start)
     if name == "fluctuations":
         return fa.NumberFluctuations(start=start, frames=frames)
     if name == "correlation":
@@ -86,7 +100,9 @@ def build(name: str, model, start, frames, options: dict):
 
 @click.command()
 @click.argument("run_dir", type=click.Path())
-@click.option("--only", default=None, help=f"Comma-separated subset of: {', '.join(QUANTITIES)}. [default: all]")
+@click.option("--only", default=None,
+              help=f"Comma-separated subset of: {', '.join(QUANTITIES)}. [default: all; species and nematic when "
+                   "the run has several species or nematic alignment]")
 @click.option("--start", default="auto", show_default=True,
               help="First step of the window, a fraction in (0, 1) of the run to discard, or auto: the end of "
                    "the transient detected in the polar order (half the run when none is found).")
@@ -109,7 +125,8 @@ def build(name: str, model, start, frames, options: dict):
 def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, out, theme, size, fmt, dpi,
             no_plots, quiet):
     """Measure a run: polar order, number fluctuations, velocity correlation, density
-    profile, clusters, box-counting dimension and MSD.
+    profile, clusters, box-counting dimension and MSD; the polar order of each species
+    and the nematic order when the run has several species or nematic alignment.
 
     RUN_DIR is a folder written by `flocking run` (or a GSD file). Writes analysis.json,
     one CSV per curve and one figure per quantity into RUN_DIR (or --out). The transient
@@ -126,6 +143,7 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     from ..viz.colors import get_theme
 
     names = parse_only(only)
+    asked = only is not None
     start = parse_start(start)
     for option, value in (("frames", frames), ("max_lag", max_lag)):
         if value is not None and value < 1:
@@ -144,12 +162,14 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
         os.path.join(run_dir, "trajectory.gsd"))) else None
     obs = os.path.join(folder, "observables.csv") if os.path.isdir(run_dir) else None
     obs = obs if obs and os.path.exists(obs) else None
-    if gsd_path is None and not (obs and names == ["polar"]):
+    model = _input.model_of(gsd_path) if gsd_path else None
+    if not asked:
+        names = [name for name in names if name not in OPTIONAL or recorded(name, model, obs, gsd_path)]
+    if gsd_path is None and not (obs and set(names) <= set(SERIES)):
         raise ParameterError(f"RUN_DIR {run_dir!r}: holds no trajectory.gsd")
     out = out or folder
     if os.path.exists(out) and not os.path.isdir(out):
         raise ParameterError(f"out: {out!r} exists and is not a folder")
-    model = _input.model_of(gsd_path) if gsd_path else None
     options = {"radius": radius, "r_max": r_max, "dr": dr, "method": method, "max_lag": max_lag}
     for name in names:  # every option checked before anything is read or written
         build(name, model, None, frames, options)
@@ -158,9 +178,11 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     except ParameterError as err:
         raise ParameterError(f"RUN_DIR {run_dir!r}: {str(err).partition(': ')[2]}") from None
     polar_source = run_dir if obs else system
-    window = choose_window(start, polar_source, system, model)
-    objects = {name: build(name, model, "auto" if name == "polar" and start == "auto" else window["start"], frames,
-                           options) for name in names}
+    series_source = run_dir if os.path.isdir(run_dir) else system
+    window = choose_window(start, polar_source, system, model, window_candidates(names, series_source),
+                           series_source)
+    objects = {name: build(name, model, "auto" if name == "polar" and window["by"] == "polar order" else
+                           window["start"], frames, options) for name in names}
     results, notes, skipped = {}, {}, {}
     for name, obj in objects.items():
         with warnings.catch_warnings(record=True) as caught:
@@ -168,6 +190,8 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
             try:
                 if name == "polar":
                     obj.compute(polar_source, n=model.n if model else None)
+                elif name in SERIES:  # observables.csv where it has the column, else the trajectory
+                    obj.compute(series_source)
                 else:
                     obj.compute(system)
             except ParameterError as err:
@@ -191,7 +215,7 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     details = caption(model, system, window)
     for name, obj in results.items():
         stem, heading, columns = OUTPUTS[name]
-        write_csv(os.path.join(out, stem + ".csv"), obj, columns)
+        write_csv(os.path.join(out, stem + ".csv"), obj, columns_of(name, obj, columns))
         if not no_plots:
             fig, ax = style.figure(size, theme=theme)
             obj.plot(ax)
@@ -206,31 +230,93 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
         click.echo(f"flocking analyze: wrote {os.path.join(out, 'analysis.json')}", err=True)
 
 
-def choose_window(start, polar_source, frames, model) -> dict:
-    """``{"start": what each quantity takes, "step": first step, "rule": how}``."""
+def recorded(name: str, model, obs: str | None, gsd_path: str | None) -> bool:
+    """Whether the run records ``name`` (of :data:`OPTIONAL`): several species (in its
+    model, the ``polar_order_<name>`` columns of observables.csv or its GSD particle
+    types), or nematic alignment (its model, or a ``nematic_order`` column)."""
+    from ..analysis import order
+
+    if model is not None:
+        return len(model.species_names) > 1 if name == "species" else model.alignment_rule == "nematic"
+    columns = order.csv_columns(obs) if obs else []
+    if name == "nematic":
+        return "nematic_order" in columns
+    if any(c.startswith("polar_order_") for c in columns):
+        return True
+    try:
+        return gsd_path is not None and len(order.species_names(gsd_path)) > 1
+    except ParameterError:  # an unreadable file: reported once it is opened
+        return False
+
+
+def columns_of(name: str, obj, columns) -> list:
+    """``(header, attribute or values)`` of a quantity's CSV: per species, one
+    ``polar_order_<name>`` column each, before ``in_window``."""
+    if name != "species":
+        return columns
+    return columns[:2] + [(f"polar_order_{s}", obj[s].series) for s in obj.names] + columns[2:]
+
+
+def choose_window(start, polar_source, frames, model, others=(), others_source=None) -> dict:
+    """``{"start": what each quantity takes, "step": first step, "rule": how, "by": the
+    series whose transient set it}``. With ``start="auto"``: the latest end of a transient
+    among the polar order and the ``others`` (``(label, quantity with start="auto")``
+    pairs, computed on ``others_source``), so that no series measured keeps its transient."""
     from ..analysis import PolarOrder
 
     if start != "auto":
-        return {"start": start, "step": start if isinstance(start, int) else None, "rule": "--start"}
+        return {"start": start, "step": start if isinstance(start, int) else None, "rule": "--start", "by": None}
     last = int(frames.steps[-1]) if frames is not None else None
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            polar = PolarOrder(start="auto").compute(polar_source, n=model.n if model else None)
-    except ParameterError:  # no velocities, or a single value: there is no transient to find
-        polar = None
+    polar = auto_window(PolarOrder(start="auto"), polar_source, n=model.n if model else None)
     if polar is None:
         if frames is not None and len(frames) >= 2:
             step = int(frames.steps[len(frames) // 2])
-            return {"start": step, "step": step, "rule": "half the run (no polar order to find the transient in)"}
+            return {"start": step, "step": step, "rule": "half the run (no polar order to find the transient in)",
+                    "by": None}
         return {"start": None, "step": int(frames.steps[0]) if frames is not None else 0,
-                "rule": "the whole run (a single frame)"}
-    step = polar.window_start if last is None else min(polar.window_start, last)
-    if polar.window_rule != "detected":
-        rule = "half the run (no steady window found)"
+                "rule": "the whole run (a single frame)", "by": None}
+    chosen, by = polar, "polar order"
+    for label, quantity in others:
+        other = auto_window(quantity, others_source)
+        if other is not None and other.window_start > chosen.window_start:
+            chosen, by = other, label
+    step = chosen.window_start if last is None else min(chosen.window_start, last)
+    where = "" if by == "polar order" else f" in the {by}"
+    if chosen.window_rule != "detected":
+        rule = f"half the run (no steady window found{where})"
     else:
-        rule = "transient detected" if step > polar.steps[0] else "no transient found"
-    return {"start": step, "step": step, "rule": rule}
+        rule = f"transient detected{where}" if step > polar.steps[0] else "no transient found"
+    return {"start": step, "step": step, "rule": rule, "by": by}
+
+
+def auto_window(quantity, source, **options):
+    """``quantity`` (with ``start="auto"``) computed on ``source``, or ``None`` when the
+    source cannot give it (no velocities, a single value: no transient to find)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return quantity.compute(source, **options)
+    except ParameterError:
+        return None
+
+
+def window_candidates(names, source) -> list:
+    """The series besides the polar order whose transients the window leaves out: the
+    nematic order and each species' polar order, when measured."""
+    from .. import analysis as fa
+    from ..analysis.order import species_names
+
+    others = []
+    if "nematic" in names:
+        others.append(("nematic order", fa.NematicOrder(start="auto")))
+    if "species" in names:
+        try:
+            species = species_names(source)
+        except ParameterError:
+            species = ()
+        others += [(f"polar order of species {s}", fa.PolarOrder(start="auto", species=s))
+                   for s in (species if len(species) > 1 else ())]
+    return others
 
 
 def window_text(window: dict) -> str:
@@ -248,7 +334,7 @@ def window_line(window: dict) -> str:
 
 def hint(name: str, obj, message: str) -> str:
     """A warning of a quantity in the command's terms (``""`` to leave it out)."""
-    if name == "polar" and obj.computed and not obj.equilibrated:
+    if name in ("polar", "nematic") and obj.computed and not obj.equilibrated:
         return (f"the window from step {obj.window_start} does not look equilibrated (its halves differ by "
                 f"{abs(obj.drift):.1f} errors): discard more with --start {obj.suggested_start}")
     if name == "boxcount" and "two box sizes" in message:
@@ -272,6 +358,10 @@ def caption(model, frames, window) -> str:
             parts.append(f"delay {model.delay}")
         if model.update != "backward":
             parts.append(f"{model.update} update")
+        if len(model.species_names) > 1:
+            parts.append(f"species {', '.join(model.species_names)}")
+        if model.alignment_rule == "nematic":
+            parts.append("nematic alignment")
     elif frames is not None:
         first = frames[0]
         parts = [f"{first.dim}D", f"N = {first.n}", "L = " + " × ".join(f"{b:.4g}" for b in first.box)]
@@ -280,7 +370,7 @@ def caption(model, frames, window) -> str:
 
 
 def write_csv(path: str, obj, columns) -> None:
-    values = [getattr(obj, attr) for _, attr in columns]
+    values = [getattr(obj, attr) if isinstance(attr, str) else attr for _, attr in columns]
     headers = [h if h is not None else "xyz"[obj.axis_used] for h, _ in columns]
     with replace_atomically(path, newline="") as f:
         writer = csv.writer(f)
@@ -303,6 +393,12 @@ def summary_lines(results) -> list[str]:
             lines.append(f"polar order: <phi> {format_value(obj.mean, obj.mean_error, ' ± ')}, "
                          f"chi {format_value(obj.susceptibility, obj.susceptibility_error, ' ± ')}, "
                          f"G {format_value(obj.binder, obj.binder_error, ' ± ')} "
+                         f"(tau {obj.tau_time:.3g} time units, {obj.samples} values)")
+        elif name == "species":
+            lines.append("polar order per species: " + ", ".join(
+                f"{s} {format_value(obj[s].mean, obj[s].mean_error, ' ± ')}" for s in obj.names))
+        elif name == "nematic":
+            lines.append(f"nematic order: <S> {format_value(obj.mean, obj.mean_error, ' ± ')} "
                          f"(tau {obj.tau_time:.3g} time units, {obj.samples} values)")
         elif name == "fluctuations":
             lines.append(f"number fluctuations: alpha {format_value(obj.alpha, obj.alpha_error, ' ± ')}")
