@@ -1,0 +1,62 @@
+"""What each extension costs on the CPU backend, against the plain model, in one process.
+
+Every case starts from the same random state of the same size and density; cases run
+interleaved, repeat by repeat, so that a slower moment of the machine hits all alike::
+
+    python benchmarks/bench_extensions.py --n 100000 --repeats 3
+
+Prints particle-steps per second (best repeat) and the ratio to the plain model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import flocking
+from flocking.backends.cpu import CPUBackend
+
+
+def cases(n: int, density: float) -> dict[str, dict]:
+    """Model arguments of each case: the plain model, then one extension at a time."""
+    side = math.sqrt(n / density)
+    return {
+        "plain": {},
+        "walls": dict(boundary="wall"),
+        "obstacle": dict(obstacles=[{"centre": [side / 2, side / 2], "radius": side / 8}]),
+        "two species, coupling": dict(species=[{"fraction": 0.5}, {"fraction": 0.5, "noise": 2.0}],
+                                      coupling=[[1.0, -1.0], [-1.0, 1.0]]),
+        "vision 2.1": dict(vision=2.1),
+        "nematic": dict(alignment_rule="nematic"),
+        "chirality 0.1": dict(chirality=0.1),
+        "field": dict(field=[1.0, 0.0], field_strength=0.2),
+    }
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--n", type=int, default=100_000)
+    parser.add_argument("--density", type=float, default=2.0)
+    parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    backends = {}
+    for name, extra in cases(args.n, args.density).items():
+        model = flocking.Model(n=args.n, density=args.density, noise=1.0, seed=1, **extra)
+        backends[name] = CPUBackend(model, flocking.State.random(model))
+        backends[name].advance(2)  # compile (or load) the kernels
+    best = dict.fromkeys(backends, float("inf"))
+    for _ in range(args.repeats):
+        for name, backend in backends.items():
+            start = time.perf_counter()
+            backend.advance(args.steps)
+            best[name] = min(best[name], time.perf_counter() - start)
+    print(f"N = {args.n}, density {args.density}, best of {args.repeats} x {args.steps} steps\n")
+    print("| case | particle-steps/s | against plain |\n| --- | ---: | ---: |")
+    for name, seconds in best.items():
+        print(f"| {name} | {args.steps * args.n / seconds:.3g} | {best['plain'] / seconds:.2f}x |")
+
+
+if __name__ == "__main__":
+    main()
