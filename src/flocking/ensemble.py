@@ -126,17 +126,22 @@ class Ensemble:
             raise ParameterError(f"replica: must be in [0, {self.replicas}) (got {r})")
         return Replica(self, r)
 
-    def run(self, steps: int, writers: Sequence[Sequence[Any]] | None = None) -> np.ndarray:
+    def run(self, steps: int, writers: Sequence[Sequence[Any]] | None = None,
+            infos: Sequence[dict[str, Any]] | None = None) -> np.ndarray:
         """Take ``steps`` steps, calling each replica's writers on their triggers, as
         :meth:`Simulation.run` does for one system: ``writers[r]`` is a list of writers
         (:class:`~flocking.GSDWriter`, :class:`~flocking.ObservablesWriter`,
         :class:`~flocking.CheckpointWriter`, ...) of replica ``r``. The ensemble advances to
-        the next step at which any writer is due. Returns the polar order ``(R, steps)``.
+        the next step at which any writer is due. ``infos[r]`` is what replica ``r``'s
+        files record beyond its parameters (as :attr:`Simulation.info`). Returns the polar
+        order ``(R, steps)``.
         """
         writers = [list(w) for w in writers] if writers is not None else [[] for _ in self.models]
         if len(writers) != self.replicas:
             raise ParameterError(f"writers: one list per replica ({self.replicas}; got {len(writers)})")
         views = [Replica(self, r, w) for r, w in enumerate(writers)]
+        for view, info in zip(views, infos or ()):
+            view.info = dict(info)
         everyone = [(view, w) for view in views for w in view.writers]
         first = step = self.step
         last = first + int(steps)
@@ -147,7 +152,7 @@ class Ensemble:
                 if w.due(step, self.origin, last):
                     w.write(view)
             while step < last:
-                target = min(last, *(_next_due(w, step, self.origin, last) for _, w in everyone))
+                target = min([last, *(_next_due(w, step, self.origin, last) for _, w in everyone)])
                 phi = self.advance(target - step)
                 out[:, step - first:target - first] = phi
                 done = np.arange(step + 1, target + 1)

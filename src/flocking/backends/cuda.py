@@ -120,9 +120,7 @@ class Engine:
                 raise ParameterError(f"states: each must hold {n} particles in {d}D, as the models")
         if len({s.step for s in states}) != 1:
             raise ParameterError("states: replicas advance together, so they must all be at the same step")
-        if any(m.extended for m in models):
-            raise ParameterError("backend: 'cuda' does not run the extensions yet (walls, obstacles, species, "
-                                 "coupling, vision, nematic alignment, chirality, fields): use 'cpu'")
+        check_supported(models)
         if r * n >= 2**31:
             raise ParameterError(f"n: the cuda backend takes fewer than 2**31 particles in all (got {r} x {n})")
         cuda = _cuda()
@@ -388,6 +386,13 @@ def radix_sort(records: np.ndarray, key_bits: int = 31, shape: tuple[int, int, i
     status = cuda.to_device(np.zeros(-(-m // k.tile) * k.digits_per_pass, dtype=np.int64))
     clock = cuda.to_device(np.array([0, 1], dtype=np.int64))
     return _radix(k, rec, rec2, m, passes(key_bits, bits), hist, status, tiles, clock, False).copy_to_host()
+
+
+def check_supported(models: Sequence[Model]) -> None:
+    """Refuse, in one line, models this backend does not run yet: those with extensions."""
+    if any(m.extended for m in models):
+        raise ParameterError("backend: 'cuda' does not run the extensions yet (walls, obstacles, species, "
+                             "coupling, vision, nematic alignment, chirality, fields): use 'cpu'")
 
 
 def check_models(models: Sequence[Model]) -> None:

@@ -23,8 +23,12 @@ from ..model import ParameterError
 @click.option("--host", default=None, metavar="ADDRESS",
               help="Interface the local cluster and its dashboard listen on. [default: 127.0.0.1]")
 @click.option("--serial", is_flag=True, help="Run the points one after another in this process, without Dask.")
+@click.option("--backend", type=click.Choice(["cpu", "cuda", "reference"]), default=None,
+              help="Backend of every run, in place of the sweep file's. cuda runs the points that share a "
+                   "shape as ensembles, in this process on its GPU, or on the GPU workers of --scheduler. "
+                   "[default: the sweep file's, else cpu]")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
-def sweep(sweep_file, out, results, scheduler, workers, host, serial, quiet):
+def sweep(sweep_file, out, results, scheduler, workers, host, serial, backend, quiet):
     """Run every point of a sweep file and gather the results into an xarray Dataset.
 
     Each finished point is stored at once in OUT/points/<id>.json; running the same
@@ -35,6 +39,7 @@ def sweep(sweep_file, out, results, scheduler, workers, host, serial, quiet):
       flocking sweep examples/vicsek1995.toml --out vicsek
       flocking sweep grid.toml --scheduler tcp://login1:8786
       flocking sweep grid.toml --serial --results grid.zarr
+      flocking sweep grid.toml --backend cuda
     """
     from ..sweep import require
     from ..sweep.spec import SweepSpec
@@ -42,6 +47,13 @@ def sweep(sweep_file, out, results, scheduler, workers, host, serial, quiet):
     if serial and (scheduler or workers or host):
         raise ParameterError("serial: runs in this process; leave out --scheduler, --workers and --host")
     spec = SweepSpec.load(sweep_file)
+    if backend is not None:
+        spec = spec.with_backend(backend)
+    gpu = any(p.config.backend == "cuda" for p in spec.points())
+    if gpu and not scheduler and (workers or host):
+        option = "workers" if workers else "host"
+        raise ParameterError(f"{option}: a cuda sweep without --scheduler runs its ensembles in this process, "
+                             f"on this machine's GPU; leave out --workers and --host")
     out = out or os.path.splitext(os.path.basename(sweep_file))[0]
     if os.path.exists(out) and not os.path.isdir(out):
         raise ParameterError(f"out: {out!r} exists and is not a folder")
@@ -49,28 +61,31 @@ def sweep(sweep_file, out, results, scheduler, workers, host, serial, quiet):
     from ..sweep.results import check_results_path, gather, save
 
     check_results_path(results)
+    serial = serial or (gpu and not scheduler)
     dask = () if serial else ("dask", "distributed") + (() if scheduler else ("cryptography",))
     require("xarray", "netCDF4" if results.endswith(".nc") else "zarr", *dask)
-    from ..sweep.executors import Dask, Serial, reach
+    from ..sweep.executors import Dask, Serial, gpu_here, reach
     from ..sweep.runner import PointStore, execute
 
     say = (lambda text: None) if quiet else (lambda text: click.echo(text, err=True))
     executor = Serial() if serial else Dask(scheduler=scheduler, workers=workers, host=host, report=say)
     if scheduler:
         reach(scheduler)  # before anything is said or written
+    elif gpu:
+        gpu_here()
     store = PointStore(out)
-    points = {p.id for p in spec.points()}
-    states = [store.state(i) for i in points]
+    points = list({p.id: p for p in spec.points()}.values())
+    states = [store.state(p) for p in points]
     stored, outdated = states.count("done"), states.count("outdated")
     say(f"flocking sweep: {len(points)} runs ({stored} stored, {len(points) - stored} to run) -> {out}")
     if outdated:
         say(f"flocking sweep: {outdated} stored runs were measured by an older flocking, without "
-            f"within-run errors; they run again")
+            f"within-run errors or the order of each species and the nematic order; they run again")
     start = time.perf_counter()
     try:
         summary = execute(spec, out, executor, progress=not quiet, report=lambda text: click.echo(text, err=True))
     except KeyboardInterrupt:
-        done = sum(store.is_done(i) for i in points)
+        done = sum(store.is_done(p) for p in points)
         click.echo(f"flocking sweep: interrupted; {done} of {len(points)} runs stored in {out}; "
                    f"run the same command again to resume", err=True)
         sys.exit(130)

@@ -1,12 +1,17 @@
 """Where the points of a sweep run: in this process, or on a Dask cluster.
 
 An executor is a context manager with a ``where`` text, the numba ``threads`` each task
-may use (``None``: all of them) and ``records(tasks)``, which runs the tasks somehow and
-yields one record per task in any order (:func:`~flocking.sweep.runner.run_point` gives
-the record of one task). Entering it acquires what it needs (a cluster, a connection) and
-fails there, before :func:`~flocking.sweep.runner.execute` writes anything; leaving it
-releases everything. Another executor (ensembles of replicas on a GPU, say) only has to
-follow the same three rules.
+may use (``None``: all of them), ``check_gpu()``, which raises a one-line
+:class:`ParameterError` unless it can run the ``cuda`` backend somewhere, and
+``records(jobs)``, which runs jobs (lists of tasks, :mod:`flocking.sweep.ensembles`)
+somehow and yields one record per task in any order
+(:func:`~flocking.sweep.ensembles.run_job` gives the records of one job). Entering it
+acquires what it needs (a cluster, a connection) and fails there, before
+:func:`~flocking.sweep.runner.execute` writes anything; leaving it releases everything.
+Another executor only has to follow the same rules.
+
+Jobs on the GPU (ensembles) go to the workers that had a GPU when ``check_gpu`` asked,
+by host name: every worker on those hosts, when not every worker has one.
 
 The local Dask cluster listens on ``127.0.0.1`` only (scheduler, nannies, workers and the
 dashboard), and speaks TLS with a key made for it in memory: no other machine can reach it,
@@ -28,7 +33,8 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from ..model import ParameterError
-from .runner import run_point
+from .ensembles import run_job
+from .runner import new_record
 
 #: Seconds to wait for a scheduler's TCP port to answer before giving up.
 CONNECT_TIMEOUT = 5.0
@@ -46,9 +52,12 @@ class Serial:
     def __exit__(self, *exc) -> None:
         return None
 
-    def records(self, tasks: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
-        for task in tasks:
-            yield run_point(task)
+    def check_gpu(self) -> None:
+        gpu_here()
+
+    def records(self, jobs: Iterable[list[dict[str, Any]]]) -> Iterator[dict[str, Any]]:
+        for job in jobs:
+            yield from run_job(job)
 
 
 class Dask:
@@ -72,6 +81,7 @@ class Dask:
         self.report = report
         self.where = scheduler or "local cluster"
         self._client = self._cluster = None
+        self._gpu_hosts: list[str] | None = None  # None: any worker may run a GPU job
 
     def __enter__(self) -> Dask:
         from distributed import Client, LocalCluster
@@ -106,23 +116,59 @@ class Dask:
             self._cluster.close()
         self._client = self._cluster = None
 
-    def records(self, tasks: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+    def check_gpu(self) -> None:
+        """Ask every worker whether it can run the ``cuda`` backend; refuse if none can."""
+        from distributed.comm import get_address_host
+
+        answers = self._client.run(_gpu_answer)
+        able = sorted(address for address, why in answers.items() if why is None)
+        if not able:
+            why = next(iter(answers.values()), "no workers").removeprefix("backend: ")
+            raise ParameterError(f"backend: none of the {len(answers)} Dask workers at "
+                                 f"{self._client.scheduler.address} can run 'cuda' ({why})")
+        if len(able) < len(answers):
+            self._gpu_hosts = sorted({get_address_host(a) for a in able})
+        self.where += f", {len(able)} with a GPU"
+
+    def records(self, jobs: Iterable[list[dict[str, Any]]]) -> Iterator[dict[str, Any]]:
+        import hashlib
+
         from distributed import as_completed
 
         by_key = {}
-        for task in tasks:
-            future = self._client.submit(run_point, task, key=f"flocking-point-{task['id']}", pure=False)
-            by_key[future.key] = (future, task)
+        for job in jobs:
+            if len(job) == 1:
+                key = f"flocking-point-{job[0]['id']}"
+            else:
+                key = "flocking-group-" + hashlib.sha256(" ".join(t["id"] for t in job).encode()).hexdigest()[:16]
+            hosts = self._gpu_hosts if job[0]["config"]["backend"] == "cuda" else None
+            future = self._client.submit(run_job, job, key=key, pure=False, workers=hosts)
+            by_key[future.key] = (future, job)
         for future in as_completed([f for f, _ in by_key.values()]):
-            task = by_key.pop(future.key)[1]
+            job = by_key.pop(future.key)[1]
             try:
-                record = future.result()
-            except Exception as err:  # the worker died (KilledWorker) or could not run the task
-                record = {"id": task["id"], "params": task["params"], "replica": task["replica"],
-                          "seed": task["config"]["seed"], "status": "failed",
-                          "error": f"{type(err).__name__}: {err}", "elapsed": float("nan")}
+                records = future.result()
+            except Exception as err:  # the worker died (KilledWorker) or could not run the job
+                records = [{**new_record(task), "host": None, "status": "failed",
+                            "error": f"{type(err).__name__}: {err}", "elapsed": float("nan")} for task in job]
             future.release()
-            yield record
+            yield from records
+
+
+def gpu_here() -> None:
+    """Raise the ``cuda`` backend's one-line error unless this process can run it."""
+    from ..backends.cuda import _cuda
+
+    _cuda()
+
+
+def _gpu_answer() -> str | None:
+    """On a worker: ``None`` if it can run the ``cuda`` backend, else why not (one line)."""
+    try:
+        gpu_here()
+    except ParameterError as err:
+        return str(err)
+    return None
 
 
 def check_address(address: str) -> tuple[str, str]:
@@ -164,4 +210,4 @@ def _bracketed(host: str) -> str:
     return f"[{host}]" if ":" in host and not host.startswith("[") else host
 
 
-__all__ = ["Dask", "Serial", "check_address", "reach"]
+__all__ = ["Dask", "Serial", "check_address", "gpu_here", "reach"]

@@ -15,7 +15,11 @@ Variables, one value per run (NaN where a run failed or has not run yet):
   or ``missing``), ``config`` (the run's TOML configuration: ``flocking run --config``
   repeats it), ``elapsed`` (seconds; the one variable that differs between two runs of a sweep);
 - with ``time_series = true``: ``phi`` over an extra dimension ``sample`` (the measured
-  steps, ``first_step`` onward; NaN-padded where runs have different lengths).
+  steps, ``first_step`` onward; NaN-padded where runs have different lengths);
+- where the models have them (:func:`flocking.observables.extra_names`): the time average
+  of each species' polar order ``polar_order_<name>`` (several species) and of the nematic
+  order ``nematic_order`` (``alignment_rule = "nematic"``) over the same steps, each with
+  its ``..._error`` from its autocorrelation time; NaN at the points whose model has not.
 
 The attributes hold the sweep file (``sweep``), its seed, replicas and transient.
 """
@@ -57,6 +61,7 @@ def gather(spec: SweepSpec, out: str | os.PathLike):
     status = np.full(shape, "missing", dtype=object)
     config = np.full(shape, "", dtype=object)
     series = {}
+    extra: dict[str, np.ndarray] = {}
     for point in spec.points():
         i = point.index
         seed[i], size[i] = point.config.model.seed, point.config.model.n
@@ -74,12 +79,16 @@ def gather(spec: SweepSpec, out: str | os.PathLike):
             floats[f"{name}_error"][i] = _number(within.get(moment))
         floats["tau"][i], floats["drift"][i] = _number(record.get("tau")), _number(record.get("drift"))
         first[i] = record["first_step"]
+        for name, value in record.get("extra", {}).items():
+            for column, number in ((name, value["mean"]), (f"{name}_error", value["error"])):
+                extra.setdefault(column, np.full(shape, np.nan))[i] = _number(number)
         if "phi" in record:
             series[i] = record["phi"]
     dims = spec.dims
     coords = {key: _coordinate(values) for key, values in spec.grid.items()}
     coords["replica"] = np.arange(spec.replicas)
     data = {name: (dims, values) for name, values in floats.items()}
+    data.update({name: (dims, values) for name, values in extra.items()})  # in the records' order
     data.update(seed=(dims, seed), n=(dims, size), status=(dims, status.astype(str)),
                 config=(dims, config.astype(str)))
     if spec.time_series:
@@ -101,6 +110,11 @@ def gather(spec: SweepSpec, out: str | os.PathLike):
     ds["tau"].attrs["long_name"] = "integrated autocorrelation time of phi"
     ds["tau"].attrs["units"] = "steps"
     ds["drift"].attrs["long_name"] = "second-half mean - first-half mean of phi, in errors"
+    for name in extra:
+        base = name.removesuffix("_error")
+        text = "nematic order" if base == "nematic_order" else f"polar order of species {base[len('polar_order_'):]}"
+        ds[name].attrs["long_name"] = (f"error of <{text}> within the run" if name.endswith("_error")
+                                       else f"<{text}>")
     return ds
 
 

@@ -21,6 +21,13 @@ A sweep file is TOML with three tables::
 A range may add ``scale = "log"`` (geometric spacing); integer parameters (``n``, ``k``,
 ``delay``, ``steps``, ...) are rounded to whole numbers.
 
+Axes and fixed values. Every entry of ``[grid]`` is an axis: a list of values, one per
+grid point. Every entry of ``[base]`` is one fixed value, whatever its type. The
+parameters whose value is itself a list or a table (:data:`LIST_VALUED`: ``obstacles``,
+``species``, ``coupling``, ``field``) therefore belong in ``[base]``; on a ``[grid]`` axis
+each value must be a whole one (``field = [[1.0, 0.0], [0.0, 1.0]]`` sweeps two
+directions), and a single one there is refused rather than read as an axis.
+
 Seeds. The point ``p`` (a mapping of the swept values) of replica ``r`` in a sweep of seed
 ``S`` runs with ``point_seed(S, p, r)``: the first 8 bytes of the SHA-256 of the canonical
 JSON text ``{"point": p, "replica": r, "seed": S}`` (sorted keys), as a little-endian
@@ -37,6 +44,10 @@ True
 Traceback (most recent call last):
 ...
 flocking.model.ParameterError: grid.nosie: unknown parameter; did you mean 'noise'?
+>>> SweepSpec.from_dict({"base": {"n": 50, "box": 8.0}, "grid": {"field": [1.0, 0.0]}})
+Traceback (most recent call last):
+...
+flocking.model.ParameterError: grid.field: one value is a direction (a list), so an axis is a list of directions such as [[1.0, 0.0], [0.0, 1.0]]; a single value goes in [base] (got [1.0, 0.0])
 """
 
 from __future__ import annotations
@@ -50,6 +61,7 @@ import numbers
 import os
 from typing import Any
 
+from ..backends.cuda import check_supported
 from ..config import RUN_DEFAULTS, RUN_KEYS, RunConfig
 from ..model import ParameterError, _integer, check_keys, loads_toml
 
@@ -60,6 +72,12 @@ PARAMETER_KEYS = tuple(k for k in RUN_KEYS if k != "seed")
 #: Parameters held as whole numbers: ranges over them are rounded.
 INTEGER_KEYS = ("dim", "n", "k", "delay", "steps", "every")
 RANGE_KEYS = ("start", "stop", "num", "scale")
+#: Parameters whose one value is a list or a table: fixed in [base], or an axis of whole
+#: values in [grid] (parameter -> an example of such an axis).
+LIST_VALUED = {"obstacles": "[[], [{centre = [8.0, 8.0], radius = 2.0}]]",
+               "species": "[[{fraction = 0.5}, {fraction = 0.5, noise = 2.0}], [{fraction = 1.0}]]",
+               "coupling": "[[[1.0, -1.0], [-1.0, 1.0]], [[1.0, 1.0], [1.0, 1.0]]]",
+               "field": "[[1.0, 0.0], [0.0, 1.0]]"}
 
 
 def point_seed(seed: int, params: dict[str, Any], replica: int) -> int:
@@ -153,6 +171,15 @@ class SweepSpec:
         spec.points()  # validates every point's configuration
         return spec
 
+    def with_backend(self, backend: str) -> SweepSpec:
+        """This sweep with every run on ``backend`` (what ``flocking sweep --backend`` does);
+        the runs' identities change with it, as their results do."""
+        if "backend" in self.grid:
+            raise ParameterError("backend: the sweep file sweeps over backend ([grid]); leave out --backend")
+        spec = dataclasses.replace(self, base={**self.base, "backend": backend})
+        spec.points()  # validates every point on that backend
+        return spec
+
     @property
     def dims(self) -> tuple[str, ...]:
         return (*self.grid, "replica")
@@ -175,6 +202,8 @@ class SweepSpec:
             params = {key: self.grid[key][i] for key, i in zip(self.grid, index)}
             try:
                 config = RunConfig.from_dict({**self.base, **params})
+                if config.backend == "cuda":
+                    check_supported([config.model])
             except ParameterError as err:
                 raise ParameterError(f"grid point {_show(params)}: {err}") from None
             discard = self.discard_steps(config.steps)
@@ -191,6 +220,8 @@ class SweepSpec:
 def expand(key: str, value: Any) -> list:
     """The values of one grid entry: a list, or a range ``{start, stop, num[, scale]}``."""
     where = f"grid.{key}"
+    if key in LIST_VALUED:
+        _check_whole_values(key, value)
     if isinstance(value, dict):
         _check(value, RANGE_KEYS, where + ".")
         for part in ("start", "stop", "num"):
@@ -224,6 +255,24 @@ def expand(key: str, value: Any) -> list:
     if len({json.dumps(v) for v in values}) != len(values):
         raise ParameterError(f"{where}: values must differ (got {values!r})")
     return values
+
+
+def _check_whole_values(key: str, value: Any) -> None:
+    """Refuse a single list- or table-valued parameter written as a [grid] axis."""
+    def whole(v: Any) -> bool:
+        if key == "field" and isinstance(v, str):  # "1,0"
+            return True
+        if key == "coupling":
+            return isinstance(v, list) and all(isinstance(row, list) for row in v)
+        return isinstance(v, list)
+
+    if not (isinstance(value, list) and all(whole(v) for v in value)):
+        one, axis = {"obstacles": ("a list of obstacles", "a list of such lists"),
+                     "species": ("a list of species", "a list of such lists"),
+                     "coupling": ("a matrix (a list of rows)", "a list of matrices"),
+                     "field": ("a direction (a list)", "a list of directions")}[key]
+        raise ParameterError(f"grid.{key}: one value is {one}, so an axis is {axis} such as "
+                             f"{LIST_VALUED[key]}; a single value goes in [base] (got {value!r})")
 
 
 def _spaced(start: float, stop: float, num: int, i: int, scale: str) -> float:
