@@ -74,7 +74,7 @@ def main() -> None:
     ax.axhline(0.0, color=t.edge, lw=0.8)
     ax.errorbar(FRACTIONS, means, yerr=errors, color=house.palette(t)[0], marker="o", ms=4, lw=1.2, capsize=2.5)
     house.label_axes(ax, r"informed fraction $p$", r"accuracy $\langle\cos(\mathbf{m}, \mathbf{g})\rangle$")
-    ax.set_ylim(-0.25, 1.05)
+    ax.set_ylim(min(-0.1, min(np.subtract(means, errors)) - 0.05), 1.05)  # every error bar whole
     house.title(fig, "Informed individuals steer the flock",
                 f"$N$ = {BASE['n']} · $\\rho$ = {BASE['density']:g} · $\\eta$ = {BASE['noise']:g} · "
                 f"$h$ = {FIELD_STRENGTH:g} · {SEEDS} seeds · steps {DISCARD}-{STEPS}")
