@@ -11,7 +11,8 @@ It prints what applies to the run:
   -1 clockwise, near 0 for a flock that does not go round it;
 * with several species, each species' polar order and heading, and the fraction of
   neighbour pairs (closer than R) of the same species, beside what a random mixture gives;
-* the nematic order S = |<exp(2 i theta)>|, and the fraction of neighbour pairs moving the
+* the nematic order S = |<exp(2 i theta)>|, the direction of the common axis (degrees from
+  +x, in (-90, 90]), and the fraction of neighbour pairs moving the
   same way along the common axis (sorted into lanes: near 1; mixed at random: the value
   printed beside it).
 """
@@ -81,12 +82,15 @@ def measure(path: str) -> dict[str, float]:
             theta = np.arctan2(u[:, 1], u[:, 0])
             q = np.mean(np.exp(2j * theta))
             row["nematic"] = abs(q)
+            row["axis"] = np.array([q.real, q.imag]) / abs(q)  # the axis at twice its angle
             sense = (np.cos(theta - np.angle(q) / 2) > 0).astype(np.int64)
             row["same_sense"], row["same_sense_random"] = same_fraction(sense, i, j)
         rows.append(row)
     # a heading is the direction of the mean of the frames' unit mean headings
     means = {key: np.mean([r[key] for r in rows], axis=0) for key in rows[0]}
-    result = {key: angle(v) if key.startswith("heading") else float(v) for key, v in means.items()}
+    result = {key: angle(v) if key.startswith("heading") else float(v) for key, v in means.items() if key != "axis"}
+    if "axis" in means:
+        result["axis"] = angle(means["axis"]) / 2
     return result | {"frames": len(rows), "from_step": frames[0].step, "to_step": frames[-1].step}
 
 
@@ -94,6 +98,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("run", help="a run folder or a .gsd file")
     args = parser.parse_args()
+    if not os.path.exists(args.run):
+        parser.error(f"run: no such folder or file (got {args.run!r})")
     for key, value in measure(args.run).items():
         print(f"{key:22s} {value:.3f}" if isinstance(value, float) else f"{key:22s} {value}")
 
