@@ -25,19 +25,24 @@ SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 
 #: name -> (model keywords, steps, precision); small systems, a few steps each
 CASES = {
     "2d": (dict(), 2, "float64"),
-    "2d-vectorial-forward": (dict(noise_type="vectorial", update="forward"), 2, "float64"),
-    "2d-alignment-uniform-speeds": (dict(alignment=0.5, speeds="uniform"), 2, "float64"),
     "2d-delay": (dict(delay=2), 3, "float64"),
     "2d-topological-rectangular": (dict(neighbours="topological", k=3, box=(4.0, 6.5)), 2, "float64"),
     "2d-box-below-3R": (dict(box=2.5, radius=1.0), 2, "float64"),
     "2d-clustered": (dict(box=8.0, noise=0.2), 2, "float64"),
+    "3d-topological-delay": (dict(dim=3, neighbours="topological", k=4, delay=2), 3, "float64"),
+    "2d-float32": (dict(), 2, "float32"),
+}
+
+#: more cases, each option already covered above in another combination (``-m slow``: the
+#: simulator takes minutes for all of them on two cores)
+MORE_CASES = {
+    "2d-vectorial-forward": (dict(noise_type="vectorial", update="forward"), 2, "float64"),
+    "2d-alignment-uniform-speeds": (dict(alignment=0.5, speeds="uniform"), 2, "float64"),
     "2d-later-step": (dict(noise_type="vectorial", noise=0.8), 1, "float64"),
     "3d": (dict(dim=3), 2, "float64"),
     "3d-vectorial-forward-alignment": (dict(dim=3, noise_type="vectorial", update="forward",
                                             alignment=0.3), 2, "float64"),
-    "3d-topological-delay": (dict(dim=3, neighbours="topological", k=4, delay=2), 3, "float64"),
     "3d-box-below-3R": (dict(dim=3, box=(2.5, 5.0, 2.0)), 2, "float64"),
-    "2d-float32": (dict(), 2, "float32"),
     "3d-float32-topological-vectorial": (dict(dim=3, neighbours="topological", k=4,
                                               noise_type="vectorial"), 2, "float32"),
 }
@@ -173,13 +178,16 @@ out = {}
 if "cases" in job:
     out["cases"] = cases(job["cases"])
 if "ensembles" in job:
-    base = flocking.Model(n=40, box=5.0, noise=1.0, seed=7)
-    out["ensembles"] = {
-        "2d": ensemble("2d", base, [dict(seed=3), dict(seed=4, noise=2.5, alignment=0.6, speed=0.3, delay=2),
-                                    dict(seed=5, speeds="uniform", delay=1)], "float64"),
-        "3d-topological-float32": ensemble("3d", flocking.Model(dim=3, n=40, box=5.0, noise=1.0, neighbours="topological", k=4),
-                                           [dict(seed=1, delay=1), dict(seed=2, noise=0.3)], "float32", 2, 1),
-    }
+    out["ensembles"] = {}
+    if "2d" in job["ensembles"]:
+        base = flocking.Model(n=40, box=5.0, noise=1.0, seed=7)
+        out["ensembles"]["2d"] = ensemble(
+            "2d", base, [dict(seed=3), dict(seed=4, noise=2.5, alignment=0.6, speed=0.3, delay=2),
+                         dict(seed=5, speeds="uniform", delay=1)], "float64")
+    if "3d-topological-float32" in job["ensembles"]:
+        base = flocking.Model(dim=3, n=40, box=5.0, noise=1.0, neighbours="topological", k=4)
+        out["ensembles"]["3d-topological-float32"] = ensemble(
+            "3d", base, [dict(seed=1, delay=1), dict(seed=2, noise=0.3)], "float32", 2, 1)
 if "safety" in job:
     out["safety"] = {"metric": safety({}, "float64"),
                      "topological-float32": safety(dict(neighbours="topological", k=3), "float32")}
@@ -189,27 +197,46 @@ print("RESULT" + json.dumps(out))
 """
 
 
-def simulate(job: dict) -> dict:
-    """Run ``HARNESS`` on ``job`` under numba's CUDA simulator, in a subprocess."""
+def simulate(*jobs: dict) -> dict:
+    """Run ``HARNESS`` on each job under numba's CUDA simulator, each in its own subprocess,
+    all at once (the simulator runs on one core); the results of all jobs in one dict."""
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": SRC}
-    proc = subprocess.run([sys.executable, "-c", HARNESS, json.dumps(job)], env=env,
-                          capture_output=True, text=True, timeout=600)
-    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT")]
-    assert proc.returncode == 0 and lines, proc.stderr[-3000:]
-    return json.loads(lines[-1][len("RESULT"):])
+    procs = [subprocess.Popen([sys.executable, "-c", HARNESS, json.dumps(job)], env=env, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for job in jobs]
+    out = {}
+    for proc in procs:
+        stdout, stderr = proc.communicate(timeout=600)
+        lines = [line for line in stdout.splitlines() if line.startswith("RESULT")]
+        assert proc.returncode == 0 and lines, stderr[-3000:]
+        out.update(json.loads(lines[-1][len("RESULT"):]))
+    return out
 
 
 @pytest.fixture(scope="module")
 def simulated():
-    """Every simulated check of this file, in one subprocess (the simulator starts once)."""
-    return simulate({"cases": CASES, "ensembles": True, "safety": True,
-                     "sorts": {"shape": [16, 4, 16], "names": SORTS, "scale": 1}})
+    """Every simulated check of the default run, in two subprocesses side by side."""
+    return simulate({"cases": CASES, "safety": True},
+                    {"ensembles": ["2d"], "sorts": {"shape": [16, 4, 16], "names": SORTS, "scale": 1}})
+
+
+@pytest.fixture(scope="module")
+def simulated_more():
+    return simulate({"cases": MORE_CASES}, {"ensembles": ["3d-topological-float32"]})
 
 
 @pytest.mark.parametrize("name", CASES)
 def test_simulated_run_matches_reference(simulated, name):
-    kw, steps, precision = CASES[name]
-    res = simulated["cases"][name]
+    check_case(simulated["cases"][name], name, *CASES[name])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", MORE_CASES)
+def test_more_simulated_runs_match_reference(simulated_more, name):
+    check_case(simulated_more["cases"][name], name, *MORE_CASES[name])
+
+
+def check_case(res: dict, name: str, kw: dict, steps: int, precision: str) -> None:
+    """A simulated run of ``steps`` steps against the reference from the same state."""
     # float64: the same formulas in the same order, so rounding alone (a few ulp per step);
     # float32: single-precision rounding of positions ~5 and headings ~1
     tol_h, tol_p = (1e-12, 1e-12) if precision == "float64" else (2e-5, 2e-5)
@@ -225,21 +252,30 @@ def test_simulated_clustered_run_is_deterministic(simulated):
     assert simulated["cases"]["2d-clustered"]["repeat"]
 
 
-@pytest.mark.parametrize("name", ["2d", "3d-topological-float32"])
-def test_simulated_ensemble_replicas_equal_single_runs(simulated, name):
+ENSEMBLES = ["2d", pytest.param("3d-topological-float32", marks=pytest.mark.slow)]
+
+
+def simulated_ensemble(request, name: str) -> dict:
+    """The simulated ensemble ``name``: 2D in the default run, 3D with ``-m slow``."""
+    fixture = "simulated" if name == "2d" else "simulated_more"
+    return request.getfixturevalue(fixture)["ensembles"][name]
+
+
+@pytest.mark.parametrize("name", ENSEMBLES)
+def test_simulated_ensemble_replicas_equal_single_runs(request, name):
     """Each replica (its own seed, noise, alignment, speed, speed rule, delay) gives bit
     for bit what its model gives alone: polar order, state and delay memory."""
-    res = simulated["ensembles"][name]
+    res = simulated_ensemble(request, name)
     assert all(res["phi"]) and all(res["state"]) and all(res["memory"])
 
 
-@pytest.mark.parametrize("name", ["2d", "3d-topological-float32"])
-def test_simulated_replica_checkpoint_continues_alone(simulated, name):
+@pytest.mark.parametrize("name", ENSEMBLES)
+def test_simulated_replica_checkpoint_continues_alone(request, name):
     """A replica's checkpoint, loaded by Simulation.load_checkpoint on the cuda backend
     and run on, takes exactly the steps the ensemble takes in float64. In float32 the
     checkpoint holds the state as ``state`` gives it (float64, headings renormalised), so
     the continued run agrees to float32 rounding only."""
-    res = simulated["ensembles"][name]
+    res = simulated_ensemble(request, name)
     assert res["resumed_backend"] == "cuda"
     if name.endswith("float32"):
         assert res["resumed_dh"] < 1e-5

@@ -4,7 +4,6 @@ have not changed since (tools/figures.py); the tool itself finds every kind of c
 import importlib.util
 import os
 import re
-import sys
 
 import pytest
 

@@ -13,8 +13,6 @@ from flocking.backends.reference import ReferenceBackend
 from flocking.config import RUN_KEYS, RunConfig
 from flocking.model import loads_toml
 
-positive = st.floats(0.05, 6.0)
-
 
 @st.composite
 def models(draw):
