@@ -1,7 +1,7 @@
 """The parameters of a flocking model: validated, frozen, and round-tripped through TOML.
 
-A :class:`Model` holds every parameter of ``shared/MODEL.md`` under the name the user
-sees (the command line uses the same words). It is resolved on construction: of ``n``,
+A :class:`Model` holds every parameter of the model (``docs/model.md``) under the name the
+user sees (the command line uses the same words). It is resolved on construction: of ``n``,
 ``density`` and ``box`` at most two may be given, and the rest is derived, so a model
 always knows its particle count and its box.
 
@@ -140,7 +140,7 @@ def parse_box(value: Any, dim: int) -> tuple[float, ...] | None:
 
 @dataclasses.dataclass(frozen=True)
 class Model:
-    """Every parameter of a flocking model (see ``shared/MODEL.md``), validated.
+    """Every parameter of a flocking model (see ``docs/model.md``), validated.
 
     ``noise`` is always stored as the radian amplitude ``eta`` (angular noise in
     ``[0, 2 pi]``) or the vectorial amplitude; give ``noise_scale="unit"`` to pass the
@@ -201,7 +201,7 @@ class Model:
         ext.check_obstacles(self.obstacles, self.box, self.walls, self.max_speed * self.dt)
 
     def _parse_extensions(self, noise_scale: str) -> None:
-        """Walls, obstacles, species, coupling, vision, chirality and field (MODEL.md's
+        """Walls, obstacles, species, coupling, vision, chirality and field (docs/model.md's
         extensions), each checked on its own; checks against the box follow its resolution."""
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         dim = self.dim

@@ -1,4 +1,4 @@
-"""Measurements of a flock (MODEL.md, Observables), in the style of freud.
+"""Measurements of a flock (docs/model.md, Observables), in the style of freud.
 
 Each quantity is a class: parameters in the constructor, ``compute(system)`` returns the
 object, results are read-only properties (:class:`NotComputedError` before ``compute``),

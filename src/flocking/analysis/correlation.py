@@ -1,4 +1,4 @@
-"""Connected velocity correlation ``C(r)`` (MODEL.md) and the correlation length.
+"""Connected velocity correlation ``C(r)`` (docs/model.md) and the correlation length.
 
 ``C(r) = sum_{i != j} du_i . du_j [r_ij in bin] / sum_{i != j} [r_ij in bin]`` with
 ``du_i = u_i - mean(u)``, summed over the frames before the ratio. Two methods:

@@ -157,7 +157,7 @@ def csv_columns(path) -> list[str]:
 
 
 def nematic_order(headings: np.ndarray) -> float:
-    """Nematic order of unit ``headings`` (N, d) (MODEL.md, Extensions: Observables): in 2D
+    """Nematic order of unit ``headings`` (N, d) (docs/model.md, Extensions: Observables): in 2D
     ``|sum_i exp(2 i theta_i)| / N``, in 3D the largest eigenvalue of
     ``Q = (3/2) <u u^T> - (1/2) I``. 1 for headings along one axis, either way; near 0
     (of order ``N^-1/2``) for isotropic ones. In 2D it is also the largest eigenvalue of

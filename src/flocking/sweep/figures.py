@@ -38,7 +38,7 @@ _SYMBOLS = {"n": "$N$", "density": r"$\rho$", "box": "$L$", "speed": "$v_0$", "r
             "noise": r"$\eta$", "alignment": r"$\varepsilon$", "delay": "delay", "dt": r"$\Delta t$",
             "steps": "steps", "dim": "$d$"}
 _Y = {"order": "mean_phi", "susceptibility": "chi", "binder": "binder"}
-#: Parameters named in a caption only where they differ from these (MODEL.md's defaults).
+#: Parameters named in a caption only where they differ from these (docs/model.md's defaults).
 _DEFAULTS = {"alignment": 1.0, "delay": 0, "dt": 1.0}
 
 

@@ -128,7 +128,7 @@ def describe(parameters, dim: int, n: int, box_lengths) -> tuple[str, str]:
 
 
 def _extension_parts(m: dict, dim: int) -> list[str]:
-    """Caption parts of the extensions a model's dict has on (MODEL.md's symbols)."""
+    """Caption parts of the extensions a model's dict has on (docs/model.md's symbols)."""
     parts = []
     boundary = str(m.get("boundary", "periodic")).split(",")
     boundary = boundary * dim if len(boundary) == 1 else boundary
