@@ -20,6 +20,7 @@ import numbers
 from typing import Any
 
 from .model import ParameterError
+from .model import _comma_numbers as comma_numbers
 from .model import _fail as fail
 from .model import _real as real
 
@@ -191,11 +192,7 @@ def parse_field(value: Any, dim: int) -> tuple[float, ...] | None:
     """The field's direction as given (any non-zero length); from a list or ``"1,0"``."""
     if value is None:
         return None
-    if isinstance(value, str):
-        try:
-            value = [float(x) for x in value.split(",")]
-        except ValueError:
-            fail("field", f"a direction of {dim} numbers such as 1,0", value)
+    value = comma_numbers("field", value, f"a direction of {dim} numbers such as 1,0")
     items = _sequence("field", value, "[1, 0]")
     if len(items) != dim:
         fail("field", f"a direction of {dim} numbers", value)

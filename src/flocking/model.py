@@ -116,15 +116,22 @@ def _field_strength(name: str, value: Any, where: str = "") -> float:
                  allowed=f"in [0, {MAX_VECTORIAL_NOISE:g}]{suffix}")
 
 
+def _comma_numbers(name: str, value: Any, allowed: str) -> Any:
+    """A string such as ``"4,5"`` as a list of floats (refused naming ``name`` and what is
+    ``allowed`` if it is not one); any other value as it is."""
+    if not isinstance(value, str):
+        return value
+    try:
+        return [float(x) for x in value.split(",")]
+    except ValueError:
+        _fail(name, allowed, value)
+
+
 def parse_box(value: Any, dim: int) -> tuple[float, ...] | None:
     """A box from a number, a sequence, or a string such as ``"4,5"``; one length per axis."""
     if value is None:
         return None
-    if isinstance(value, str):
-        try:
-            value = [float(x) for x in value.split(",")]
-        except ValueError:
-            _fail("box", "a positive number or one per axis such as 4,5", value)
+    value = _comma_numbers("box", value, "a positive number or one per axis such as 4,5")
     if isinstance(value, numbers.Real) and not isinstance(value, bool):
         value = [value]
     try:
