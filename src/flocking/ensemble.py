@@ -143,6 +143,9 @@ class Ensemble:
         for view, info in zip(views, infos or ()):
             view.info = dict(info)
         everyone = [(view, w) for view in views for w in view.writers]
+        # replicas with observables beyond the polar order (per species, nematic): only
+        # single-system backends run such models, and keep their moment sums
+        records_extra = [self._singles is not None and bool(extra_names(view.model)) for view in views]
         first = step = self.step
         last = first + int(steps)
         out = np.empty((self.replicas, int(steps)))
@@ -157,8 +160,8 @@ class Ensemble:
                 out[:, step - first:target - first] = phi
                 done = np.arange(step + 1, target + 1)
                 step = target
-                extra = [view.extra_observables(self._singles[view.index].moments)
-                         if self._singles is not None and extra_names(view.model) else None for view in views]
+                extra = [view.extra_observables(self._singles[view.index].moments) if recorded else None
+                         for view, recorded in zip(views, records_extra)]
                 for view, w in everyone:
                     w.observe(done, phi[view.index], extra[view.index])
                     if w.due(step, self.origin, last):
