@@ -65,8 +65,9 @@ def listening(pid: int) -> dict[int, list[tuple[str, int]]]:
     root = psutil.Process(pid)
     for proc in [root, *root.children(recursive=True)]:
         try:
-            found = [(c.laddr.ip, c.laddr.port) for c in proc.net_connections(kind="inet")
-                     if c.status == psutil.CONN_LISTEN]
+            # sorted: the kernel lists a process's sockets in no fixed order
+            found = sorted((c.laddr.ip, c.laddr.port) for c in proc.net_connections(kind="inet")
+                           if c.status == psutil.CONN_LISTEN)
         except psutil.NoSuchProcess:
             continue
         if found:
