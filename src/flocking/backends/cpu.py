@@ -228,10 +228,11 @@ _ALL = np.uint64(2**64 - 1)  # a `last` that masks nothing
 
 
 @numba.njit(cache=True, inline="always")
-def _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d):
-    """Append slots ``lo..hi`` to the buffer at ``m``, periodic shifts applied; returns the
-    new end. Unsigned indices (here and in the reductions): numba then emits no
-    negative-index wraparound, which would keep LLVM from vectorising the loops."""
+def _copy(x, y, z, hx, hy, hz, tag, lo, hi, shx, shy, shz, buf, m, d):
+    """Append slots ``lo..hi`` to the buffer at ``m``, periodic shifts applied (and, unless
+    ``tag`` is None, ``tag[slot]`` into row ``2d``); returns the new end. Unsigned indices
+    (here and in the reductions): numba then emits no negative-index wraparound, which
+    would keep LLVM from vectorising the loops."""
     m = np.uint64(m)
     for j in range(np.uint64(max(lo, 0)), np.uint64(max(hi, 0))):
         buf[0, m] = x[j] + shx
@@ -241,6 +242,8 @@ def _copy(x, y, z, hx, hy, hz, lo, hi, shx, shy, shz, buf, m, d):
         if d == 3:
             buf[2, m] = z[j] + shz
             buf[5, m] = hz[j]
+        if tag is not None:  # pruned when compiling for None: the plain kernel never sees it
+            buf[2 * d, m] = tag[j]
         m += _U1
     return np.int64(m)
 
@@ -255,7 +258,7 @@ def _neighbour_line(gy, gz, r, nc, box, d):
 
 
 @numba.njit(cache=True)
-def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d):
+def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, rows, d):
     """Copy what the cells ``c0..c1-1`` of a line of cells need into ``buf``; returns how
     many entries it used, or -1 (nothing copied) if the buffer is too small.
 
@@ -267,6 +270,9 @@ def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d
     ``rows[r]`` = (first cell of that line, where its copy starts, where it ends, what to
     add to a slot to find its copy). Each copy is followed by three zeroed entries, so a
     reduction may read whole groups of four past its end (and multiply them by 0).
+    ``box`` gives the shifts: the box itself, or along an axis with walls a shift that
+    puts every wrapped copy out of reach. Unless ``tag`` is None, row ``2d`` gets
+    ``tag[slot]`` (the extensions' species).
     """
     nx, ny = nc[0], nc[1]
     gy, gz = line % ny, line // ny
@@ -287,12 +293,12 @@ def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d
         rows[r, 0] = row0
         rows[r, 1] = m
         if c0 == 0:
-            m = _copy(x, y, z, hx, hy, hz, start[row0 + nx - 1], start[row0 + nx], -box[0], shy, shz, buf, m, d)
+            m = _copy(x, y, z, hx, hy, hz, tag, start[row0 + nx - 1], start[row0 + nx], -box[0], shy, shz, buf, m, d)
         first = start[row0 + max(c0 - 1, 0)]
         rows[r, 3] = m - first
-        m = _copy(x, y, z, hx, hy, hz, first, start[row0 + min(c1 + 1, nx)], 0.0, shy, shz, buf, m, d)
+        m = _copy(x, y, z, hx, hy, hz, tag, first, start[row0 + min(c1 + 1, nx)], 0.0, shy, shz, buf, m, d)
         if c1 == nx:
-            m = _copy(x, y, z, hx, hy, hz, start[row0], start[row0 + 1], box[0], shy, shz, buf, m, d)
+            m = _copy(x, y, z, hx, hy, hz, tag, start[row0], start[row0 + 1], box[0], shy, shz, buf, m, d)
         rows[r, 2] = m
         for a in range(2 * d):
             buf[a, m], buf[a, m + 1], buf[a, m + 2] = 0.0, 0.0, 0.0
@@ -620,7 +626,7 @@ def _step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ri
             line = u // nseg
             c0 = (u % nseg) * _SEGMENT
             c1 = min(nx, c0 + _SEGMENT)
-            while _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, start, nc, box, buf, rows, d) < 0:
+            while _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, None, start, nc, box, buf, rows, d) < 0:
                 buf = np.empty((2 * d, 2 * buf.shape[1]))
             # first the sums of every particle of the segment, then the updates in one
             # loop: its iterations are independent, so the processor overlaps their long
@@ -772,20 +778,18 @@ class CPUBackend:
             self._spd, self._tmp_spd = np.empty(n), np.empty(n)
         self._step_count = state.step
         self._extensions = ()  # the extra arguments of the kernel for a model with extensions
-        if model.extended:
-            from . import cpu_extensions
-
-            mode = 3
-            self._kernel = cpu_extensions.step
-            self._extensions = cpu_extensions.parameters(model, self._nc)
-        elif model.neighbours == "topological":
+        if model.neighbours == "topological":
             mode = 2
         else:
             mode = 0 if np.all(self._nc >= 3) else 1
-        if mode < 3:
-            self._kernel = _step_lines if mode == 0 else _step_search
-        self._partial = np.zeros((_work_units(self._nc, n, min(mode, 1)),
-                                  moment_width(model) if mode == 3 else 3))
+        self._kernel = _step_lines if mode == 0 else _step_search
+        units = min(mode, 1)
+        if model.extended:
+            from . import cpu_extensions
+
+            self._kernel, units = cpu_extensions.kernel(model, self._nc)
+            self._extensions = cpu_extensions.parameters(model, self._nc)
+        self._partial = np.zeros((_work_units(self._nc, n, units), moment_width(model) if model.extended else 3))
         self._params = np.array([
             model.radius**2, model.k if model.neighbours == "topological" else 0, model.noise,
             model.noise_type == "vectorial", model.alignment, model.delay, model.dt,

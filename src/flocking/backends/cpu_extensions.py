@@ -1,20 +1,29 @@
 """The CPU backend's step for a model with extensions: walls, obstacles, species and their
 coupling, vision cones, nematic alignment, chirality and fields.
 
-The plain model keeps the tuned kernels of :mod:`flocking.backends.cpu`; a model with any
-extension (:attr:`flocking.Model.extended`) takes this step instead, over the same arrays
-kept in cell order and the same cells. Work comes in fixed blocks of slots that threads
-take from an atomic counter (as the topological kernel does), so no result depends on the
-number of threads. Each particle sums its neighbours, itself left out, from the ``3^d``
-cells around its own (metric) or from rings of cells (the ``k`` nearest), each neighbour
-weighted by the coupling of the two species and, for nematic alignment, by the sign of
-``u_i . u_j``; a vision cone drops the neighbours behind. Then the per-particle update of
-:mod:`flocking.backends.kernels` (with the species' noise, alignment, chirality and field
-strength), the move, the walls and the obstacles, in the order of the model description.
+The plain model keeps the kernels of :mod:`flocking.backends.cpu`; a model with any
+extension (:attr:`flocking.Model.extended`) takes one of the two steps here instead, over
+the same arrays kept in cell order and the same cells (:func:`kernel` picks):
 
-Along an axis with walls there is no minimum image (``half = inf``) and no cell wraps
-around. Each block also sums the moments of its new headings (:mod:`flocking.observables`:
-per species ``sum u``, and the nematic products), then blocks are added in order.
+- :func:`step_lines`, metric neighbours on a grid of at least three cells per axis, works
+  like the plain ``_step_lines``: a unit (a segment of a line of cells) gathers its
+  candidates into one buffer, with each particle's species alongside. Along an axis with
+  walls the wrapped copies are shifted by ``2L`` instead of ``L``, out of reach. Without
+  pair weights the plain SIMD reductions sum the neighbours (the particle itself then taken
+  out); with them (coupling, nematic sign, vision cone), :func:`_reduce` weighs each pair.
+- :func:`step_search`, topological neighbours and small grids, over blocks of slots: each
+  particle sums the others in the ``3^d`` cells around its own (metric, every pair by
+  minimum image) or in rings of cells (the ``k`` nearest).
+
+Each neighbour is weighted by the coupling of the two species and, for nematic alignment,
+by the sign of ``u_i . u_j``; a vision cone drops the neighbours behind. Then the
+per-particle update of :mod:`flocking.backends.kernels` (with the species' noise,
+alignment, chirality and field strength), the move, the walls and the obstacles, in the
+order of the model description (docs/model.md). Work units are fixed and taken from an
+atomic counter, so no result depends on the number of threads. Along an axis with walls
+there is no minimum image (``half = inf``) and no cell wraps around. Each unit also sums
+the moments of its new headings (:mod:`flocking.observables`: per species ``sum u``, and
+the nematic products), then units are added in order.
 
 The parameters travel as small arrays: ``half`` (per axis), ``walls`` (0/1 per axis),
 ``obstacles`` ``(M, d + 1)`` (centre, radius), ``bounds`` (the first id of each species,
@@ -30,7 +39,8 @@ import math
 import numba
 import numpy as np
 
-from .cpu import _BLOCK, _axis_cells, _cell_of, _fetch_add, _swap_delay, _topological, _work_units
+from .cpu import (_BLOCK, _SEGMENT, _axis_cells, _cell_of, _fetch_add, _gather_rows, _ranges, _reduce_2d, _reduce_3d,
+                  _swap_delay, _topological, _work_units)
 from .kernels import minimum_image, update_2d, update_3d, wrap
 
 _COUPLING, _NEMATIC, _CONE, _COS = 0, 1, 2, 3
@@ -215,12 +225,149 @@ def _advance(i, ox, oy, oz, total, pos, head, spd, ids, new_pos, new_head, cell,
     cell[i] = _cell_of(new_pos, i, nc, inv)
 
 
+@numba.njit(cache=True, inline="always")
+def _accumulate(acc, i, new_head, ids, bounds, nematic):
+    """Add slot ``i``'s new heading to the moment sums ``acc``: its species' ``sum u``, then
+    (nematic alignment) the products of the nematic order."""
+    d = new_head.shape[0]
+    o = _species_of(ids[i], bounds) * d
+    for a in range(d):
+        acc[o + a] += new_head[a, i]
+    if nematic:
+        o = (bounds.shape[0] - 1) * d
+        wx, wy = new_head[0, i], new_head[1, i]
+        if d == 2:
+            acc[o] += wx * wx - wy * wy
+            acc[o + 1] += 2.0 * wx * wy
+        else:
+            wz = new_head[2, i]
+            acc[o] += wx * wx
+            acc[o + 1] += wy * wy
+            acc[o + 2] += wz * wz
+            acc[o + 3] += wx * wy
+            acc[o + 4] += wx * wz
+            acc[o + 5] += wy * wz
+
+
+@numba.njit(cache=True)
+def _reduce(buf, ranges, me, x, y, z, hx, hy, hz, tag, i0, i1, r2, coupling, q, out, o):
+    """For slots ``i0..i1``: the weighted heading sum of the candidates in the buffer
+    ``ranges`` (:func:`flocking.backends.cpu._gather_rows`, species in row ``2d``) within
+    ``R`` and the vision cone, slot ``i`` itself (buffer entry ``i + me``) left out, and
+    their number, into ``out[:, o + i - i0]``."""
+    d = buf.shape[0] // 2
+    use_j, nematic, cone, cos_v = q[_COUPLING] != 0.0, q[_NEMATIC] != 0.0, q[_CONE] != 0.0, q[_COS]
+    for i in range(i0, i1):
+        xi, yi, zi = x[i], y[i], z[i] if d == 3 else 0.0
+        ux, uy, uz = hx[i], hy[i], hz[i] if d == 3 else 0.0
+        si = int(tag[i])
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        count = 0.0
+        for r in range(ranges.shape[0]):
+            for j in range(ranges[r, 0], ranges[r, 1]):
+                dx = buf[0, j] - xi
+                dy = buf[1, j] - yi
+                dz = buf[2, j] - zi if d == 3 else 0.0
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 >= r2 or j == i + me:
+                    continue
+                if cone and not ux * dx + uy * dy + uz * dz >= math.sqrt(d2) * cos_v:
+                    continue
+                vx, vy, vz = buf[d, j], buf[d + 1, j], buf[5, j] if d == 3 else 0.0
+                w = coupling[si, int(buf[2 * d, j])] if use_j else 1.0
+                if nematic and ux * vx + uy * vy + uz * vz < 0.0:
+                    w = -w
+                sx += w * vx
+                sy += w * vy
+                sz += w * vz
+                count += 1.0
+        out[0, o + i - i0] = sx
+        out[1, o + i - i0] = sy
+        out[2, o + i - i0] = sz
+        out[3, o + i - i0] = count
+
+
 @numba.njit(cache=True, parallel=True)
-def step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, p, partial, threads,
-         half, walls, obstacles, bounds, species, coupling, g, q):
-    """One step with extensions, from the sorted arrays into ``new_*`` (same slots);
-    ``partial[b]`` gets the moment sums of block ``b``'s new headings. The leading
-    arguments are those of :func:`flocking.backends.cpu._step_search`."""
+def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, p, partial,
+               threads, half, walls, obstacles, bounds, species, coupling, g, q):
+    """One step with extensions for metric neighbours on a grid of at least three cells
+    per axis, in the units of :func:`flocking.backends.cpu._step_lines` (segments of lines
+    of cells, the candidates gathered into one buffer per unit; across a wall the wrapped
+    copies are shifted out of reach); ``partial[u]`` gets unit ``u``'s moment sums.
+    Without pair weights (walls, obstacles, speeds and noises of species, chirality, a
+    field) the neighbours are summed by the plain kernel's SIMD reductions."""
+    d, n = pos.shape
+    r2, vectorial = p[0], p[3] != 0.0
+    delay, dt, backward = int(p[5]), p[6], p[7] != 0.0
+    nematic = q[_NEMATIC] != 0.0
+    # pair weights (coupling, nematic sign, cone) need the weighted sum; otherwise the
+    # plain model's vectorised one serves
+    weighted = q[_COUPLING] != 0.0 or nematic or q[_CONE] != 0.0
+    inv = nc / box
+    shifts = box * (1.0 + walls)  # 2L along a wall axis: a wrapped copy is never within R
+    nx = nc[0]
+    nseg = (nx + _SEGMENT - 1) // _SEGMENT
+    nunits = _work_units(nc, n, 0)
+    nt = max(1, min(threads, nunits))
+    tag = np.empty(n)
+    for i in numba.prange(n):
+        tag[i] = _species_of(ids[i], bounds)
+    counter = np.zeros(1, dtype=np.int64)
+    width = partial.shape[1]
+    centre = 1 if d == 2 else 4  # the line itself among the 3 (3D: 9) around it
+    for t in numba.prange(nt):
+        x, y, z = pos[0], pos[1], pos[d - 1]
+        hx, hy, hz = head[0], head[1], head[d - 1]
+        buf = np.empty((2 * d + 1, 4096))
+        rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
+        ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
+        out = np.empty((4, 16))
+        acc = np.zeros(width)
+        while True:
+            u = _fetch_add(counter)
+            if u >= nunits:
+                break
+            line = u // nseg
+            c0 = (u % nseg) * _SEGMENT
+            c1 = min(nx, c0 + _SEGMENT)
+            while _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, d) < 0:
+                buf = np.empty((2 * d + 1, 2 * buf.shape[1]))
+            s0, s1 = start[line * nx + c0], start[line * nx + c1]
+            if s1 - s0 > out.shape[1]:
+                out = np.empty((4, 2 * (s1 - s0)))
+            for cx in range(c0, c1):
+                c = line * nx + cx
+                _ranges(cx, nx, start, rows, ranges)
+                if weighted:
+                    _reduce(buf, ranges, rows[centre, 3], x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2,
+                            coupling, q, out, start[c] - s0)
+                elif d == 2:
+                    _reduce_2d(buf, ranges, x, y, start[c], start[c + 1], r2, out, start[c] - s0)
+                else:
+                    _reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
+            acc[:] = 0.0
+            for i in range(s0, s1):
+                m = i - s0
+                if weighted:
+                    ox, oy, oz, total = out[0, m], out[1, m], out[2, m], out[3, m] + 1.0
+                else:  # the plain sums count the particle itself: take it out
+                    ox, oy, total = out[0, m] - hx[i], out[1, m] - hy[i], out[d, m]
+                    oz = out[2, m] - hz[i] if d == 3 else 0.0
+                _advance(i, ox, oy, oz, total, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
+                         vectorial, delay, dt, backward, nc, inv, box, half, walls, obstacles, bounds, species, g)
+                _accumulate(acc, i, new_head, ids, bounds, nematic)
+            partial[u, :] = acc
+
+
+@numba.njit(cache=True, parallel=True)
+def step_search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, p, partial,
+                threads, half, walls, obstacles, bounds, species, coupling, g, q):
+    """One step with extensions over blocks of slots: topological neighbours, and metric
+    ones on a grid with fewer than three cells along some axis. ``partial[b]`` gets
+    block ``b``'s moment sums; the leading arguments are those of
+    :func:`flocking.backends.cpu._step_search`."""
     d, n = pos.shape
     r2, k, vectorial = p[0], int(p[1]), p[3] != 0.0
     delay, dt, backward = int(p[5]), p[6], p[7] != 0.0
@@ -265,22 +412,14 @@ def step(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slo
                     _advance(i, ox, oy, oz, float(count + 1), pos, head, spd, ids, new_pos, new_head, cell, ring,
                              slot, step, seed, vectorial, delay, dt, backward, nc, inv, box, half, walls, obstacles,
                              bounds, species, g)
-                    o = _species_of(ids[i], bounds) * d
-                    for a in range(d):
-                        acc[o + a] += new_head[a, i]
-                    if nematic:
-                        o = (bounds.shape[0] - 1) * d
-                        wx, wy = new_head[0, i], new_head[1, i]
-                        if d == 2:
-                            acc[o] += wx * wx - wy * wy
-                            acc[o + 1] += 2.0 * wx * wy
-                        else:
-                            wz = new_head[2, i]
-                            acc[o] += wx * wx
-                            acc[o + 1] += wy * wy
-                            acc[o + 2] += wz * wz
-                            acc[o + 3] += wx * wy
-                            acc[o + 4] += wx * wz
-                            acc[o + 5] += wy * wz
+                    _accumulate(acc, i, new_head, ids, bounds, nematic)
                 c += 1
             partial[b, :] = acc
+
+
+def kernel(model, nc: np.ndarray):
+    """The step for ``model`` on the grid ``nc`` and its units of work (the ``mode`` of
+    :func:`flocking.backends.cpu._work_units`)."""
+    if model.neighbours == "metric" and np.all(nc >= 3):
+        return step_lines, 0
+    return step_search, 1
