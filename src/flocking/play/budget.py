@@ -8,8 +8,8 @@ sum over cells of ``n_c`` times the particles in the block of cells around ``c``
 candidates a particle; all of it packed into one cell has ``n``. :data:`COSTS` holds the
 nanoseconds per particle and per candidate of each kernel. A model with extensions
 (:attr:`flocking.Model.extended`: walls, obstacles, species, a vision cone, chirality)
-runs the slower step of :mod:`flocking.backends.cpu_extensions`, and each obstacle adds
-:data:`OBSTACLE_COST` per particle.
+runs a step of :mod:`flocking.backends.cpu_extensions` (dearer where each pair is
+weighted), and each obstacle adds :data:`OBSTACLE_COST` per particle.
 
 A tab's memory is the backend's (:meth:`~flocking.backends.cpu.CPUBackend.bytes_needed`)
 plus the copies a frame makes (:func:`session_bytes`). A :class:`Budget` shares a
@@ -40,10 +40,14 @@ from ..model import Model, ParameterError
 #: nanoseconds of one core per particle and per neighbour candidate in a step, by kernel
 #: (``topological``: per particle and neighbour sought, ``k + 1``); measured on the
 #: project's 2-core machine while other programs kept it busy, so rather high. In 3D a
-#: particle costs twice as much. The extended step (any extension on) was measured the
-#: same way against the plain one, N = 10^4 at density 2 spread out and crowded into
-#: 2 % of the box: 7 times the plain cost per particle and 20 times per candidate.
+#: particle costs twice as much. The extended steps (any extension on) were measured
+#: against the plain one on one thread, N = 10^4 at density 2, spread out and crowded into
+#: 2 % of the box (docs/play.md): on a metric grid of at least three cells a side, without
+#: pair weights as the plain step (walls and chirality: 200 ns and 1.8 ns measured), with
+#: them (a coupling matrix, nematic alignment, a vision cone) 400 ns and 11 to 15 ns;
+#: elsewhere (a box under ``3R``) 7 times the plain cost per particle, 20 times per candidate.
 COSTS = {"lines": (300.0, 2.0), "generic": (300.0, 25.0), "topological": (250.0, 2.5),
+         "extended lines": (300.0, 2.5), "extended weighted": (500.0, 20.0),
          "extended": (2500.0, 50.0), "extended topological": (450.0, 15.0)}
 #: nanoseconds per particle and obstacle: each particle is tested against every obstacle
 OBSTACLE_COST = 25.0
@@ -61,16 +65,26 @@ MiB = 2**20
 def kernel(model: Model) -> str:
     """The cpu backend's kernel for ``model``: ``lines`` (metric, at least three cells
     a side), ``generic`` (metric, a box under ``3R`` along some axis), ``topological``,
-    or with any extension ``extended`` and ``extended topological``.
+    or with any extension ``extended lines`` (metric, at least three cells a side, no pair
+    weights), ``extended weighted`` (the same with a coupling matrix, nematic alignment or
+    a vision cone), ``extended`` (a box under ``3R``) and ``extended topological``.
 
     >>> kernel(Model(n=100, box=10.0)), kernel(Model(n=100, box=10.0, boundary="wall"))
-    ('lines', 'extended')
+    ('lines', 'extended lines')
+    >>> kernel(Model(n=100, box=10.0, vision=2.0)), kernel(Model(n=100, box=2.5, vision=2.0))
+    ('extended weighted', 'extended')
     """
+    grid = np.all(cell_grid(model) >= 3)
     if model.extended:
-        return "extended" + (" topological" if model.neighbours == "topological" else "")
+        if model.neighbours == "topological":
+            return "extended topological"
+        if not grid:
+            return "extended"
+        weighted = model.coupling is not None or model.alignment_rule == "nematic" or model.vision < math.pi
+        return "extended weighted" if weighted else "extended lines"
     if model.neighbours == "topological":
         return "topological"
-    return "lines" if np.all(cell_grid(model) >= 3) else "generic"
+    return "lines" if grid else "generic"
 
 
 def step_cost(model: Model, positions: np.ndarray) -> tuple[float, float]:
