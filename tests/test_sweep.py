@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -314,9 +315,7 @@ def test_cli_sweep_then_plot(tmp_path):
 
     (tmp_path / "g.toml").write_text(SMALL)
     runner = CliRunner()
-    with runner.isolated_filesystem(temp_dir=tmp_path):
-        import shutil
-        shutil.copy(tmp_path / "g.toml", "g.toml")
+    with contextlib.chdir(tmp_path):
         result = runner.invoke(main, ["sweep", "g.toml", "--serial", "-q", "--results", "g.zarr"])
         assert result.exit_code == 0, result.output
         assert os.path.isdir("g/points") and os.path.isdir("g.zarr") and not os.path.exists("g/results.nc")
@@ -337,7 +336,7 @@ def test_cli_errors_are_one_line_and_nothing_is_written(tmp_path, args, text):
     from click.testing import CliRunner
 
     runner = CliRunner()
-    with runner.isolated_filesystem(temp_dir=tmp_path):
+    with contextlib.chdir(tmp_path):
         with open("bad.toml", "w") as f:
             f.write("[grid]\nnosie = [1.0]\n")
         with open("good.toml", "w") as f:

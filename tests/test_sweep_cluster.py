@@ -8,6 +8,7 @@ as an operating system sees it: listening sockets of the process and its childre
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -184,7 +185,7 @@ def test_a_scheduler_that_is_not_there_fails_at_once_and_writes_nothing(tmp_path
     port = free_port()
     address, text = address.format(port=port), text.format(port=port)
     runner = CliRunner()
-    with runner.isolated_filesystem(temp_dir=tmp_path):
+    with contextlib.chdir(tmp_path):
         with open("s.toml", "w") as f:
             f.write(SLOW)
         begin = time.perf_counter()

@@ -9,6 +9,7 @@ a real device and skip cleanly without one.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -241,7 +242,7 @@ def test_cuda_sweep_errors_are_one_line_and_nothing_is_written(tmp_path, args, t
              "f.toml": plain.replace("steps = 5", 'steps = 5\nprecision = "float32"'),
              "e.toml": plain.replace("steps = 5", 'steps = 5\nboundary = "wall"')}
     runner = CliRunner()
-    with runner.isolated_filesystem(temp_dir=tmp_path):
+    with contextlib.chdir(tmp_path):
         for name, content in files.items():
             with open(name, "w") as f:
                 f.write(content)
