@@ -401,14 +401,19 @@ def test_resume_with_extensions_is_exact(tmp_path):
     assert np.array_equal(whole.state.headings, resumed.state.headings)
 
 
-def test_cuda_refuses_extensions_in_one_line():
-    model = Model(n=10, box=5.0, boundary="wall")
-    try:
-        from flocking.backends.cuda import CUDABackend
-    except ParameterError:
-        pytest.skip("no cuda module")
-    with pytest.raises(ParameterError, match=r"^(backend: 'cuda' (does not|needs))"):
-        CUDABackend(model, State.random(model))
+def test_cuda_refuses_extensions_in_one_line_naming_them():
+    from flocking.backends.cuda import check_supported
+
+    model = Model(n=10, box=5.0, boundary="wall", vision=2.0, species=[{"fraction": 0.5}, {"fraction": 0.5}])
+    with pytest.raises(ParameterError, match=r"^backend: 'cuda' does not run the extensions yet \(this model has "
+                                             r"walls, species, vision\): use 'cpu'$"):
+        check_supported([Model(n=10, box=5.0), model])
+    check_supported([Model(n=10, box=5.0)])  # the plain model runs
+    # every extension has a name, and only a model with one is extended
+    every = make(2, {**EXTENSIONS["all-with-delay"], **EXTENSIONS["species-coupling"]})
+    assert every.extensions == ("walls", "obstacles", "species", "coupling", "vision", "nematic alignment",
+                                "chirality", "field")
+    assert all(make(2, options).extensions for options in EXTENSIONS.values())
 
 
 # -- refusals --------------------------------------------------------------------------------

@@ -347,11 +347,24 @@ class Model:
     def extended(self) -> bool:
         """Whether any extension beyond the plain model is on (a single species that changes
         only the speeds is not one: the plain step takes a speed per particle)."""
-        plain_species = len(self.species) <= 1 and all(
-            getattr(sp, name) is None for sp in self.species for name in ("noise", "alignment"))
-        return not (plain_species and not any(self.walls) and not self.obstacles and self.coupling is None
-                    and self.vision == math.pi and self.alignment_rule == "polar"
-                    and not any(self.species_values("chirality")) and not any(self.species_values("field_strength")))
+        return bool(self.extensions)
+
+    @property
+    def extensions(self) -> tuple[str, ...]:
+        """The names of the extensions that are on, in the order of the model description.
+
+        >>> Model(n=100, box=10.0, vision=2.0, chirality=0.1).extensions
+        ('vision', 'chirality')
+        >>> Model(n=100, box=10.0, species=[{"fraction": 1.0, "speeds": "uniform"}]).extensions
+        ()
+        """
+        species = len(self.species) > 1 or any(
+            getattr(sp, name) is not None for sp in self.species for name in ("noise", "alignment"))
+        on = {"walls": any(self.walls), "obstacles": bool(self.obstacles), "species": species,
+              "coupling": self.coupling is not None, "vision": self.vision != math.pi,
+              "nematic alignment": self.alignment_rule == "nematic",
+              "chirality": any(self.species_values("chirality")), "field": any(self.species_values("field_strength"))}
+        return tuple(name for name, value in on.items() if value)
 
     # -- conversions -------------------------------------------------------------------
 

@@ -389,10 +389,12 @@ def radix_sort(records: np.ndarray, key_bits: int = 31, shape: tuple[int, int, i
 
 
 def check_supported(models: Sequence[Model]) -> None:
-    """Refuse, in one line, models this backend does not run yet: those with extensions."""
-    if any(m.extended for m in models):
-        raise ParameterError("backend: 'cuda' does not run the extensions yet (walls, obstacles, species, "
-                             "coupling, vision, nematic alignment, chirality, fields): use 'cpu'")
+    """Refuse, in one line naming them, models this backend does not run yet: those with
+    extensions (:attr:`flocking.Model.extensions`)."""
+    on = [name for m in models for name in m.extensions]
+    if on:
+        names = ", ".join(dict.fromkeys(on))
+        raise ParameterError(f"backend: 'cuda' does not run the extensions yet (this model has {names}): use 'cpu'")
 
 
 def check_models(models: Sequence[Model]) -> None:
