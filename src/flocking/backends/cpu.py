@@ -307,6 +307,24 @@ def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, ro
 
 
 @numba.njit(cache=True, inline="always")
+def _gather_unit(u, nseg, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, out, d):
+    """Unit ``u`` of the line kernels, segment ``u % nseg`` of line ``u // nseg`` (as
+    :func:`_work_units` counts them): its line, columns ``c0..c1-1`` and slots ``s0..s1-1``,
+    with its candidates gathered into ``buf`` (:func:`_gather_rows`; ``shifts`` and ``tag``
+    as there). Returns those and ``buf`` and ``out`` (sums, a column per slot), each
+    replaced by a larger one where the unit needs more room."""
+    line = u // nseg
+    c0 = (u % nseg) * _SEGMENT
+    c1 = min(nc[0], c0 + _SEGMENT)
+    while _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, d) < 0:
+        buf = np.empty((buf.shape[0], 2 * buf.shape[1]))
+    s0, s1 = start[line * nc[0] + c0], start[line * nc[0] + c1]
+    if s1 - s0 > out.shape[1]:
+        out = np.empty((out.shape[0], 2 * (s1 - s0)))
+    return line, c0, c1, s0, s1, buf, out
+
+
+@numba.njit(cache=True, inline="always")
 def _ranges(cx, nx, start, rows, ranges):
     """Where, in the buffer of :func:`_gather_rows`, the candidates of column ``cx`` lie:
     one range per neighbouring line, into ``ranges``."""
@@ -623,17 +641,11 @@ def _step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ri
             u = _fetch_add(counter)
             if u >= nunits:
                 break
-            line = u // nseg
-            c0 = (u % nseg) * _SEGMENT
-            c1 = min(nx, c0 + _SEGMENT)
-            while _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, None, start, nc, box, buf, rows, d) < 0:
-                buf = np.empty((2 * d, 2 * buf.shape[1]))
+            line, c0, c1, s0, s1, buf, out = _gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc, box, buf,
+                                                          rows, out, d)
             # first the sums of every particle of the segment, then the updates in one
             # loop: its iterations are independent, so the processor overlaps their long
             # chains of dependent operations (it cannot across the reductions)
-            s0, s1 = start[line * nx + c0], start[line * nx + c1]
-            if s1 - s0 > out.shape[1]:
-                out = np.empty((d + 1, 2 * (s1 - s0)))
             for cx in range(c0, c1):
                 c = line * nx + cx
                 _ranges(cx, nx, start, rows, ranges)
@@ -787,7 +799,7 @@ class CPUBackend:
         if model.extended:
             from . import cpu_extensions
 
-            self._kernel, units = cpu_extensions.kernel(model, self._nc)
+            self._kernel, units = cpu_extensions.kernel(mode)
             self._extensions = cpu_extensions.parameters(model, self._nc)
         self._partial = np.zeros((_work_units(self._nc, n, units), moment_width(model) if model.extended else 3))
         self._params = np.array([

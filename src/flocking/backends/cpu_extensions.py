@@ -39,11 +39,14 @@ import math
 import numba
 import numpy as np
 
-from .cpu import (_BLOCK, _SEGMENT, _axis_cells, _cell_of, _fetch_add, _gather_rows, _ranges, _reduce_2d, _reduce_3d,
+from .cpu import (_BLOCK, _SEGMENT, _axis_cells, _cell_of, _fetch_add, _gather_unit, _ranges, _reduce_2d, _reduce_3d,
                   _swap_delay, _topological, _work_units)
 from .kernels import minimum_image, update_2d, update_3d, wrap
 
 _COUPLING, _NEMATIC, _CONE, _COS = 0, 1, 2, 3
+#: the extensions (:attr:`flocking.Model.extensions`) that weigh each neighbour pair: with
+#: any of them on, :func:`step_lines` sums the neighbours one pair at a time
+PAIR_WEIGHTS = ("coupling", "nematic alignment", "vision")
 
 
 def parameters(model, nc: np.ndarray) -> tuple:
@@ -62,8 +65,7 @@ def parameters(model, nc: np.ndarray) -> tuple:
     g = np.zeros(3)
     if model.field is not None:
         g[:d] = model.field_direction
-    q = np.array([model.coupling is not None, model.alignment_rule == "nematic", model.vision < math.pi,
-                  math.cos(model.vision)], dtype=np.float64)
+    q = np.array([name in model.extensions for name in PAIR_WEIGHTS] + [math.cos(model.vision)], dtype=np.float64)
     return half, walls, obstacles, bounds, species, coupling, g, q
 
 
@@ -329,14 +331,8 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
             u = _fetch_add(counter)
             if u >= nunits:
                 break
-            line = u // nseg
-            c0 = (u % nseg) * _SEGMENT
-            c1 = min(nx, c0 + _SEGMENT)
-            while _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, d) < 0:
-                buf = np.empty((2 * d + 1, 2 * buf.shape[1]))
-            s0, s1 = start[line * nx + c0], start[line * nx + c1]
-            if s1 - s0 > out.shape[1]:
-                out = np.empty((4, 2 * (s1 - s0)))
+            line, c0, c1, s0, s1, buf, out = _gather_unit(u, nseg, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf,
+                                                          rows, out, d)
             for cx in range(c0, c1):
                 c = line * nx + cx
                 _ranges(cx, nx, start, rows, ranges)
@@ -417,9 +413,8 @@ def step_search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ri
             partial[b, :] = acc
 
 
-def kernel(model, nc: np.ndarray):
-    """The step for ``model`` on the grid ``nc`` and its units of work (the ``mode`` of
-    :func:`flocking.backends.cpu._work_units`)."""
-    if model.neighbours == "metric" and np.all(nc >= 3):
-        return step_lines, 0
-    return step_search, 1
+def kernel(mode: int):
+    """The step for a model with extensions and its units of work (the ``mode`` of
+    :func:`flocking.backends.cpu._work_units`), from the plain model's kernel ``mode``:
+    0 (metric neighbours, at least three cells per axis) takes :func:`step_lines`."""
+    return (step_lines, 0) if mode == 0 else (step_search, 1)

@@ -35,6 +35,7 @@ import numba
 import numpy as np
 
 from ..backends.cpu import CPUBackend, cell_grid
+from ..backends.cpu_extensions import PAIR_WEIGHTS
 from ..model import Model, ParameterError
 
 #: nanoseconds of one core per particle and per neighbour candidate in a step, by kernel
@@ -80,7 +81,7 @@ def kernel(model: Model) -> str:
             return "extended topological"
         if not grid:
             return "extended"
-        weighted = model.coupling is not None or model.alignment_rule == "nematic" or model.vision < math.pi
+        weighted = not set(PAIR_WEIGHTS).isdisjoint(model.extensions)
         return "extended weighted" if weighted else "extended lines"
     if model.neighbours == "topological":
         return "topological"
