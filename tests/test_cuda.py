@@ -19,6 +19,7 @@ import pytest
 
 import flocking
 from flocking.backends.reference import ReferenceBackend
+from gpu_marks import gpu, no_gpu
 
 SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src")
 
@@ -318,20 +319,8 @@ def test_precision_is_validated():
         CUDABackend(model, flocking.State.random(model), precision="half")
 
 
-def _gpu_available() -> bool:
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return False
-    try:
-        from numba import cuda
-
-        return bool(cuda.is_available())
-    except Exception:  # noqa: BLE001 - any failure to reach a device means no device
-        return False
-
-
+@no_gpu
 def test_no_gpu_gives_one_line_error(tmp_path):
-    if _gpu_available():
-        pytest.skip("a GPU is present")
     from click.testing import CliRunner
 
     from flocking.cli import main
@@ -345,9 +334,6 @@ def test_no_gpu_gives_one_line_error(tmp_path):
 
 
 # -- real device --------------------------------------------------------------------
-
-gpu = pytest.mark.skipif(not _gpu_available(), reason="needs an NVIDIA GPU with numba-cuda")
-
 
 @pytest.mark.gpu
 @gpu

@@ -28,6 +28,7 @@ from flocking.sweep.ensembles import jobs, run_group  # noqa: E402
 from flocking.sweep.executors import Dask, Serial  # noqa: E402
 from flocking.sweep.runner import MOMENTS, PointStore, execute, task_of  # noqa: E402
 from flocking.sweep.spec import SweepSpec  # noqa: E402
+from gpu_marks import CUDA_RUNS, gpu, no_gpu  # noqa: E402
 
 SRC = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, "src"))
 
@@ -188,20 +189,6 @@ def test_cuda_points_group_by_shape_steps_and_precision_and_others_run_alone(mon
     assert [[t["replica"] for t in job] for job in found] == [[0, 1], [2, 3], [4]]
 
 
-def _gpu_available() -> bool:
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return True
-    try:
-        from numba import cuda
-
-        return bool(cuda.is_available())
-    except Exception:  # noqa: BLE001 - any failure to reach a device means no device
-        return False
-
-
-no_gpu = pytest.mark.skipif(_gpu_available(), reason="a GPU is present")
-
-
 @no_gpu
 def test_an_ensemble_that_cannot_start_fails_each_point_and_a_bad_start_fails_alone(tmp_path):
     """Without a device the ensemble fails, and with it each of its points, with the
@@ -266,7 +253,7 @@ def test_a_cluster_without_a_gpu_is_refused_before_anything_is_written(tmp_path)
 
 
 def test_serial_executor_checks_for_a_gpu_in_this_process():
-    if _gpu_available():
+    if CUDA_RUNS:
         Serial().check_gpu()
     else:
         with pytest.raises(ParameterError, match=r"^backend: 'cuda' needs an NVIDIA GPU"):
@@ -274,10 +261,6 @@ def test_serial_executor_checks_for_a_gpu_in_this_process():
 
 
 # -- real device --------------------------------------------------------------------------------
-
-gpu = pytest.mark.skipif(not _gpu_available() or os.environ.get("NUMBA_ENABLE_CUDASIM") == "1",
-                         reason="needs an NVIDIA GPU with numba-cuda")
-
 
 @pytest.mark.gpu
 @gpu
