@@ -4,6 +4,7 @@ Every case starts from the same random state of the same size and density; cases
 interleaved, repeat by repeat, so that a slower moment of the machine hits all alike::
 
     python benchmarks/bench_extensions.py --n 100000 --repeats 3
+    python benchmarks/bench_extensions.py --n 100000 --repeats 3 --dim 3
 
 Prints particle-steps per second (best repeat) and the ratio to the plain model.
 """
@@ -11,27 +12,31 @@ Prints particle-steps per second (best repeat) and the ratio to the plain model.
 from __future__ import annotations
 
 import argparse
-import math
 import time
 
 import flocking
 from flocking.backends.cpu import CPUBackend
 
 
-def cases(n: int, density: float) -> dict[str, dict]:
-    """Model arguments of each case: the plain model, then one extension at a time."""
-    side = math.sqrt(n / density)
-    return {
+def cases(n: int, density: float, dim: int = 2) -> dict[str, dict]:
+    """Model arguments of each case: the plain model, then one extension at a time
+    (chirality in 2D only)."""
+    side = (n / density) ** (1.0 / dim)
+    field = [1.0, 0.0, 0.0][:dim]
+    found = {
         "plain": {},
         "walls": dict(boundary="wall"),
-        "obstacle": dict(obstacles=[{"centre": [side / 2, side / 2], "radius": side / 8}]),
+        "obstacle": dict(obstacles=[{"centre": [side / 2] * dim, "radius": side / 8}]),
         "two species, coupling": dict(species=[{"fraction": 0.5}, {"fraction": 0.5, "noise": 2.0}],
                                       coupling=[[1.0, -1.0], [-1.0, 1.0]]),
         "vision 2.1": dict(vision=2.1),
         "nematic": dict(alignment_rule="nematic"),
         "chirality 0.1": dict(chirality=0.1),
-        "field": dict(field=[1.0, 0.0], field_strength=0.2),
+        "field": dict(field=field, field_strength=0.2),
     }
+    if dim == 3:
+        del found["chirality 0.1"]
+    return found
 
 
 def main(argv=None) -> None:
@@ -40,10 +45,11 @@ def main(argv=None) -> None:
     parser.add_argument("--density", type=float, default=2.0)
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
     args = parser.parse_args(argv)
     backends = {}
-    for name, extra in cases(args.n, args.density).items():
-        model = flocking.Model(n=args.n, density=args.density, noise=1.0, seed=1, **extra)
+    for name, extra in cases(args.n, args.density, args.dim).items():
+        model = flocking.Model(n=args.n, dim=args.dim, density=args.density, noise=1.0, seed=1, **extra)
         backends[name] = CPUBackend(model, flocking.State.random(model))
         backends[name].advance(2)  # compile (or load) the kernels
     best = dict.fromkeys(backends, float("inf"))
@@ -52,7 +58,7 @@ def main(argv=None) -> None:
             start = time.perf_counter()
             backend.advance(args.steps)
             best[name] = min(best[name], time.perf_counter() - start)
-    print(f"N = {args.n}, density {args.density}, best of {args.repeats} x {args.steps} steps\n")
+    print(f"{args.dim}D, N = {args.n}, density {args.density}, best of {args.repeats} x {args.steps} steps\n")
     print("| case | particle-steps/s | against plain |\n| --- | ---: | ---: |")
     for name, seconds in best.items():
         print(f"| {name} | {args.steps * args.n / seconds:.3g} | {best['plain'] / seconds:.2f}x |")

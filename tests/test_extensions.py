@@ -33,6 +33,8 @@ EXTENSIONS = {
     "obstacles": dict(obstacles=[{"centre": [1.5, 1.5], "radius": 1.0}, {"centre": [4.5, 4.0], "radius": 0.8}]),
     "species-coupling": dict(species=[{"fraction": 0.4, "noise": 0.3, "alignment": 0.6, "speed": 0.3},
                                       {"fraction": 0.6, "speeds": "uniform"}], coupling=[[1.0, -1.0], [-0.5, 2.0]]),
+    "three-species": dict(species=[{"fraction": 0.3}, {"fraction": 0.3, "noise": 0.5}, {"fraction": 0.4}],
+                          coupling=[[1.0, -1.0, 0.5], [0.0, 1.0, 2.0], [-0.5, 1.5, 1.0]], vision=2.5),
     "vision": dict(vision=1.2),
     "nematic": dict(alignment_rule="nematic"),
     "chirality": dict(chirality=0.3, dt=0.8),

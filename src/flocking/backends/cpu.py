@@ -300,7 +300,7 @@ def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, ro
         if c1 == nx:
             m = _copy(x, y, z, hx, hy, hz, tag, start[row0], start[row0 + 1], box[0], shy, shz, buf, m, d)
         rows[r, 2] = m
-        for a in range(2 * d):
+        for a in range(buf.shape[0]):
             buf[a, m], buf[a, m + 1], buf[a, m + 2] = 0.0, 0.0, 0.0
         m += 3
     return m

@@ -9,8 +9,9 @@ the same arrays kept in cell order and the same cells (:func:`kernel` picks):
   like the plain ``_step_lines``: a unit (a segment of a line of cells) gathers its
   candidates into one buffer, with each particle's species alongside. Along an axis with
   walls the wrapped copies are shifted by ``2L`` instead of ``L``, out of reach. Without
-  pair weights the plain SIMD reductions sum the neighbours (the particle itself then taken
-  out); with them (coupling, nematic sign, vision cone), :func:`_reduce` weighs each pair.
+  pair weights the plain SIMD reductions sum the neighbours; with them (coupling, nematic
+  sign, vision cone), :func:`_wreduce_2d` and :func:`_wreduce_3d` weigh each pair in the
+  same four lanes, without branches. Both count the particle itself, then take it out.
 - :func:`step_search`, topological neighbours and small grids, over blocks of slots: each
   particle sums the others in the ``3^d`` cells around its own (metric, every pair by
   minimum image) or in rings of cells (the ``k`` nearest).
@@ -39,13 +40,13 @@ import math
 import numba
 import numpy as np
 
-from .cpu import (_BLOCK, _SEGMENT, _axis_cells, _cell_of, _fetch_add, _gather_unit, _ranges, _reduce_2d, _reduce_3d,
-                  _swap_delay, _topological, _work_units)
+from .cpu import (_ALL, _BLOCK, _SEGMENT, _U1, _axis_cells, _cell_of, _fetch_add, _gather_unit, _ranges, _reduce_2d,
+                  _reduce_3d, _swap_delay, _topological, _work_units)
 from .kernels import minimum_image, update_2d, update_3d, wrap
 
 _COUPLING, _NEMATIC, _CONE, _COS = 0, 1, 2, 3
 #: the extensions (:attr:`flocking.Model.extensions`) that weigh each neighbour pair: with
-#: any of them on, :func:`step_lines` sums the neighbours one pair at a time
+#: any of them on, :func:`step_lines` weighs each pair (:func:`_wreduce_2d`)
 PAIR_WEIGHTS = ("coupling", "nematic alignment", "vision")
 
 
@@ -251,44 +252,109 @@ def _accumulate(acc, i, new_head, ids, bounds, nematic):
             acc[o + 5] += wy * wz
 
 
+@numba.njit(cache=True, inline="always")
+def _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jrow):
+    """As :func:`flocking.backends.cpu._term_2d`, candidate ``j`` weighted: 0 unless it is
+    in the vision cone of heading ``(ux, uy)`` (``a |a| >= cs d^2`` for ``a = u . r``,
+    the cone test squared with its sign: ``cs`` is ``cos |cos|`` of the half-angle, -4
+    with no cone), times the coupling ``jrow`` to its species (row ``4``), times -1 if
+    ``fn`` is 1 (nematic alignment; else 0) and its heading points against ``u``. Selects
+    and products, no branch, as there."""
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    vx = buf[2, j]
+    vy = buf[3, j]
+    d2 = dx * dx + dy * dy
+    a = ux * dx + uy * dy
+    inside = (d2 < r2) & (j <= last) & (a * abs(a) >= cs * d2)
+    w = jrow[np.int32(buf[4, j])] * (1.0 if inside else 0.0)
+    w *= -1.0 if fn * (ux * vx + uy * vy) < 0.0 else 1.0
+    return vx * w, vy * w, 1.0 if inside else 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jrow):
+    """As :func:`_wterm_2d`, in 3D (species in row ``6``)."""
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    dz = buf[2, j] - zi
+    vx = buf[3, j]
+    vy = buf[4, j]
+    vz = buf[5, j]
+    d2 = dx * dx + dy * dy + dz * dz
+    a = ux * dx + uy * dy + uz * dz
+    inside = (d2 < r2) & (j <= last) & (a * abs(a) >= cs * d2)
+    w = jrow[np.int32(buf[6, j])] * (1.0 if inside else 0.0)
+    w *= -1.0 if fn * (ux * vx + uy * vy + uz * vz) < 0.0 else 1.0
+    return vx * w, vy * w, vz * w, 1.0 if inside else 0.0
+
+
 @numba.njit(cache=True)
-def _reduce(buf, ranges, me, x, y, z, hx, hy, hz, tag, i0, i1, r2, coupling, q, out, o):
-    """For slots ``i0..i1``: the weighted heading sum of the candidates in the buffer
-    ``ranges`` (:func:`flocking.backends.cpu._gather_rows`, species in row ``2d``) within
-    ``R`` and the vision cone, slot ``i`` itself (buffer entry ``i + me``) left out, and
-    their number, into ``out[:, o + i - i0]``."""
-    d = buf.shape[0] // 2
-    use_j, nematic, cone, cos_v = q[_COUPLING] != 0.0, q[_NEMATIC] != 0.0, q[_CONE] != 0.0, q[_COS]
+def _wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cs, nematic, coupling, out, o):
+    """As :func:`flocking.backends.cpu._reduce_2d` (self included, four lanes), each
+    candidate weighted by :func:`_wterm_2d`; ``tag`` holds the species of the slots."""
     for i in range(i0, i1):
-        xi, yi, zi = x[i], y[i], z[i] if d == 3 else 0.0
-        ux, uy, uz = hx[i], hy[i], hz[i] if d == 3 else 0.0
-        si = int(tag[i])
-        sx = 0.0
-        sy = 0.0
-        sz = 0.0
-        count = 0.0
+        xi = x[i]
+        yi = y[i]
+        ux = hx[i]
+        uy = hy[i]
+        fn = 1.0 if nematic else 0.0
+        jrow = coupling[int(tag[i])]
+        a0 = a1 = a2 = a3 = 0.0
+        b0 = b1 = b2 = b3 = 0.0
+        n0 = n1 = n2 = n3 = 0.0
         for r in range(ranges.shape[0]):
-            for j in range(ranges[r, 0], ranges[r, 1]):
-                dx = buf[0, j] - xi
-                dy = buf[1, j] - yi
-                dz = buf[2, j] - zi if d == 3 else 0.0
-                d2 = dx * dx + dy * dy + dz * dz
-                if d2 >= r2 or j == i + me:
-                    continue
-                if cone and not ux * dx + uy * dy + uz * dz >= math.sqrt(d2) * cos_v:
-                    continue
-                vx, vy, vz = buf[d, j], buf[d + 1, j], buf[5, j] if d == 3 else 0.0
-                w = coupling[si, int(buf[2 * d, j])] if use_j else 1.0
-                if nematic and ux * vx + uy * vy + uz * vz < 0.0:
-                    w = -w
-                sx += w * vx
-                sy += w * vy
-                sz += w * vz
-                count += 1.0
-        out[0, o + i - i0] = sx
-        out[1, o + i - i0] = sy
-        out[2, o + i - i0] = sz
-        out[3, o + i - i0] = count
+            lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
+            m4 = hi - (hi - lo) % np.uint64(4)
+            for j in range(lo, hi, np.uint64(4)):
+                last = _ALL if j < m4 else hi - _U1
+                p0, q0, w0 = _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jrow)
+                p1, q1, w1 = _wterm_2d(buf, j + _U1, last, xi, yi, ux, uy, fn, r2, cs, jrow)
+                p2, q2, w2 = _wterm_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, fn, r2, cs, jrow)
+                p3, q3, w3 = _wterm_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, fn, r2, cs, jrow)
+                a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+                b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+                n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
+        out[0, o + i - i0] = (a0 + a1) + (a2 + a3)
+        out[1, o + i - i0] = (b0 + b1) + (b2 + b3)
+        out[2, o + i - i0] = (n0 + n1) + (n2 + n3)
+
+
+@numba.njit(cache=True)
+def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, coupling, out, o):
+    """As :func:`_wreduce_2d`, in 3D."""
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        zi = z[i]
+        ux = hx[i]
+        uy = hy[i]
+        uz = hz[i]
+        fn = 1.0 if nematic else 0.0
+        jrow = coupling[int(tag[i])]
+        a0 = a1 = a2 = a3 = 0.0
+        b0 = b1 = b2 = b3 = 0.0
+        c0 = c1 = c2 = c3 = 0.0
+        n0 = n1 = n2 = n3 = 0.0
+        for r in range(ranges.shape[0]):
+            lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
+            m4 = hi - (hi - lo) % np.uint64(4)
+            for j in range(lo, hi, np.uint64(4)):
+                last = _ALL if j < m4 else hi - _U1
+                p0, q0, r0, w0 = _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jrow)
+                p1, q1, r1, w1 = _wterm_3d(buf, j + _U1, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jrow)
+                p2, q2, r2_, w2 = _wterm_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, fn, r2, cs,
+                                            jrow)
+                p3, q3, r3, w3 = _wterm_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, fn, r2, cs,
+                                           jrow)
+                a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+                b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+                c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
+                n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
+        out[0, o + i - i0] = (a0 + a1) + (a2 + a3)
+        out[1, o + i - i0] = (b0 + b1) + (b2 + b3)
+        out[2, o + i - i0] = (c0 + c1) + (c2 + c3)
+        out[3, o + i - i0] = (n0 + n1) + (n2 + n3)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -304,9 +370,10 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     r2, vectorial = p[0], p[3] != 0.0
     delay, dt, backward = int(p[5]), p[6], p[7] != 0.0
     nematic = q[_NEMATIC] != 0.0
-    # pair weights (coupling, nematic sign, cone) need the weighted sum; otherwise the
-    # plain model's vectorised one serves
+    # pair weights (coupling, nematic sign, cone) need the weighted sums; otherwise the
+    # plain model's serve
     weighted = q[_COUPLING] != 0.0 or nematic or q[_CONE] != 0.0
+    cs = q[_COS] * abs(q[_COS]) if q[_CONE] != 0.0 else -4.0  # -4: every candidate is in
     inv = nc / box
     shifts = box * (1.0 + walls)  # 2L along a wall axis: a wrapped copy is never within R
     nx = nc[0]
@@ -318,7 +385,6 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
         tag[i] = _species_of(ids[i], bounds)
     counter = np.zeros(1, dtype=np.int64)
     width = partial.shape[1]
-    centre = 1 if d == 2 else 4  # the line itself among the 3 (3D: 9) around it
     for t in numba.prange(nt):
         x, y, z = pos[0], pos[1], pos[d - 1]
         hx, hy, hz = head[0], head[1], head[d - 1]
@@ -336,21 +402,24 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
             for cx in range(c0, c1):
                 c = line * nx + cx
                 _ranges(cx, nx, start, rows, ranges)
-                if weighted:
-                    _reduce(buf, ranges, rows[centre, 3], x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2,
-                            coupling, q, out, start[c] - s0)
-                elif d == 2:
+                if not weighted and d == 2:
                     _reduce_2d(buf, ranges, x, y, start[c], start[c + 1], r2, out, start[c] - s0)
-                else:
+                elif not weighted:
                     _reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
+                elif d == 2:
+                    _wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, cs, nematic, coupling, out,
+                                start[c] - s0)
+                else:
+                    _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, cs, nematic,
+                                coupling, out, start[c] - s0)
             acc[:] = 0.0
             for i in range(s0, s1):
                 m = i - s0
-                if weighted:
-                    ox, oy, oz, total = out[0, m], out[1, m], out[2, m], out[3, m] + 1.0
-                else:  # the plain sums count the particle itself: take it out
-                    ox, oy, total = out[0, m] - hx[i], out[1, m] - hy[i], out[d, m]
-                    oz = out[2, m] - hz[i] if d == 3 else 0.0
+                # the sums include the particle itself, with its own species' coupling
+                # (ones without a coupling matrix), in its cone, of its own sense: take it out
+                w = coupling[int(tag[i]), int(tag[i])]
+                ox, oy, total = out[0, m] - w * hx[i], out[1, m] - w * hy[i], out[d, m]
+                oz = out[2, m] - w * hz[i] if d == 3 else 0.0
                 _advance(i, ox, oy, oz, total, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
                          vectorial, delay, dt, backward, nc, inv, box, half, walls, obstacles, bounds, species, g)
                 _accumulate(acc, i, new_head, ids, bounds, nematic)

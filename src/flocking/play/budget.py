@@ -45,10 +45,11 @@ from ..model import Model, ParameterError
 #: against the plain one on one thread, N = 10^4 at density 2, spread out and crowded into
 #: 2 % of the box (docs/play.md): on a metric grid of at least three cells a side, without
 #: pair weights as the plain step (walls and chirality: 200 ns and 1.8 ns measured), with
-#: them (a coupling matrix, nematic alignment, a vision cone) 400 ns and 11 to 15 ns;
+#: them (a coupling matrix, nematic alignment, a vision cone) about 1.2 times per particle
+#: and 2 to 3 times per candidate (220 to 310 ns and 3.4 to 5 ns);
 #: elsewhere (a box under ``3R``) 7 times the plain cost per particle, 20 times per candidate.
 COSTS = {"lines": (300.0, 2.0), "generic": (300.0, 25.0), "topological": (250.0, 2.5),
-         "extended lines": (300.0, 2.5), "extended weighted": (500.0, 20.0),
+         "extended lines": (300.0, 2.5), "extended weighted": (350.0, 6.0),
          "extended": (2500.0, 50.0), "extended topological": (450.0, 15.0)}
 #: nanoseconds per particle and obstacle: each particle is tested against every obstacle
 OBSTACLE_COST = 25.0
