@@ -252,7 +252,7 @@ def _accumulate(acc, i, new_head, ids, bounds, nematic):
             acc[o + 5] += wy * wz
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jrow):
     """As :func:`flocking.backends.cpu._term_2d`, candidate ``j`` weighted: 0 unless it is
     in the vision cone of heading ``(ux, uy)`` (``a |a| >= cs d^2`` for ``a = u . r``,
@@ -272,7 +272,7 @@ def _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jrow):
     return vx * w, vy * w, 1.0 if inside else 0.0
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jrow):
     """As :func:`_wterm_2d`, in 3D (species in row ``6``)."""
     dx = buf[0, j] - xi
