@@ -21,7 +21,8 @@ import flocking
 from flocking.backends.reference import ReferenceBackend
 from gpu_marks import gpu, no_gpu
 
-SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src")
+TESTS = os.path.dirname(os.path.abspath(__file__))
+SRC = os.path.join(os.path.dirname(TESTS), "src")
 
 #: name -> (model keywords, steps, precision); small systems, a few steps each
 CASES = {
@@ -47,6 +48,18 @@ MORE_CASES = {
     "3d-float32-topological-vectorial": (dict(dim=3, neighbours="topological", k=4,
                                               noise_type="vectorial"), 2, "float32"),
 }
+
+#: extension cases of tests/test_extensions.py as ``name:dim:precision``, each against the
+#: reference under the simulator: every extension, in 2D and 3D, in the default run ...
+EXTENDED = ["walls:2:float64", "obstacles:3:float64", "three-species:2:float64", "nematic:3:float64",
+            "chirality:2:float64", "informed:2:float64", "all-with-delay:2:float64", "topological:2:float64",
+            "box-below-3R:3:float64", "all-with-delay:2:float32"]
+#: ... and every other combination with ``-m slow``
+MORE_EXTENDED = [f"{name}:{dim}:float64" for dim in (2, 3) for name in (
+    "walls", "wall-one-axis", "obstacles", "species-coupling", "three-species", "vision", "nematic", "chirality",
+    "field", "informed", "all-with-delay", "topological", "topological-delay-nematic", "box-below-3R")
+    if f"{name}:{dim}:float64" not in EXTENDED and not (dim == 3 and name == "chirality")] + [
+    "topological:3:float32"]
 
 #: datasets of the sort test (see ``sorts`` in the harness)
 SORTS = ["one-cell", "three-crowded-cells", "random-12-bit"]
@@ -174,8 +187,68 @@ def sorts(shape, names, scale):
         out[name] = bool((got == rec[np.argsort(rec >> np.uint64(32), kind="stable")]).all())
     return out
 
+def extended(names):
+    # each extension case of tests/test_extensions.py (60 particles), one step at a time
+    # from the oracle's state, against the reference: every difference, moments included
+    sys.path.insert(0, TESTS)
+    from test_extensions import EXTENSIONS, make
+    from flocking.state import inside_obstacles
+
+    out = {}
+    for key in names:
+        name, dim, precision = key.split(":")
+        n = 60 if dim == "2" else 120  # about 3 neighbours each in the 6^d box
+        options = dict(EXTENSIONS[name], n=n)
+        if "species" in options and "n" in options["species"][0]:
+            options["species"] = [{**options["species"][0], "n": n // 3}, {**options["species"][1], "n": n - n // 3}]
+        model = make(int(dim), options)
+        state = flocking.State.random(model)
+        worst = dict(dp=0.0, dh=0.0, dphi=0.0, dmoments=0.0)
+        inside, outside = True, False
+        for _ in range(2):
+            gpu, ref = CUDABackend(model, state, precision=precision), ReferenceBackend(model, state)
+            phi, phi_ref = gpu.advance(1), ref.advance(1)
+            a, b = gpu.state, ref.state
+            d = a.positions - b.positions
+            box, periodic = np.asarray(model.box), ~np.asarray(model.walls)
+            d = np.where(periodic, d - box * np.round(d / box), d)
+            for key_, value in (("dp", d), ("dh", a.headings - b.headings), ("dphi", phi - phi_ref),
+                                ("dmoments", gpu.moments - ref.moments)):
+                worst[key_] = max(worst[key_], float(np.abs(value).max()))
+            inside &= bool(((a.positions >= 0) & (a.positions <= box)).all())
+            outside |= bool(inside_obstacles(model, a.positions).any())
+            state = b
+        out[key] = dict(worst, inside=inside, in_obstacle=outside,
+                        width=[list(gpu.moments.shape), list(ref.moments.shape)])
+    return out
+
+def extended_ensemble():
+    # replicas with their own chirality, field strength, noise and seed (one species set,
+    # one coupling, walls, a cone): each bit for bit what it gives alone, and the
+    # observables an ensemble run records per species and nematic order from its sums
+    base = flocking.Model(n=40, box=5.0, noise=1.0, boundary="wall,periodic", vision=2.5,
+                          species=[{"fraction": 0.5}, {"fraction": 0.5, "noise": 0.4}],
+                          coupling=[[1.0, -1.0], [0.5, 1.0]], alignment_rule="nematic", field=[0.0, 1.0])
+    models = [base.replace(seed=1, chirality=0.2), base.replace(seed=2, field_strength=0.3, noise=2.0)]
+    ens = flocking.Ensemble(models, backend="cuda")
+    phi = ens.advance(3)
+    moments = ens._engine.moments
+    alone = [CUDABackend(m, flocking.State.random(m)) for m in models]
+    res = {"phi": [bool((phi[r] == b.advance(3)).all()) for r, b in enumerate(alone)],
+           "moments": [bool((moments[r] == b.moments).all()) for r, b in enumerate(alone)],
+           "state": [same_state(ens.states[r], b.state) for r, b in enumerate(alone)]}
+    ens = flocking.Ensemble(models, backend="cuda")
+    writers = [[flocking.ObservablesWriter(os.path.join(tempfile.mkdtemp(), "o.csv"))] for _ in models]
+    ens.run(2, writers)
+    res["columns"] = open(writers[0][0].path).readline().strip().split(",")
+    return res
+
 job = json.loads(sys.argv[1])
 out = {}
+if "extended" in job:
+    out["extended"] = extended(job["extended"])
+if "extended_ensemble" in job:
+    out["extended_ensemble"] = extended_ensemble()
 if "cases" in job:
     out["cases"] = cases(job["cases"])
 if "ensembles" in job:
@@ -202,14 +275,16 @@ def simulate(*jobs: dict) -> dict:
     """Run ``HARNESS`` on each job under numba's CUDA simulator, each in its own subprocess,
     all at once (the simulator runs on one core); the results of all jobs in one dict."""
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": SRC}
-    procs = [subprocess.Popen([sys.executable, "-c", HARNESS, json.dumps(job)], env=env, text=True,
+    harness = f"TESTS = {TESTS!r}\n" + HARNESS
+    procs = [subprocess.Popen([sys.executable, "-c", harness, json.dumps(job)], env=env, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE) for job in jobs]
     out = {}
     for proc in procs:
         stdout, stderr = proc.communicate(timeout=600)
         lines = [line for line in stdout.splitlines() if line.startswith("RESULT")]
         assert proc.returncode == 0 and lines, stderr[-3000:]
-        out.update(json.loads(lines[-1][len("RESULT"):]))
+        for key, value in json.loads(lines[-1][len("RESULT"):]).items():
+            out.setdefault(key, {}).update(value)
     return out
 
 
@@ -247,6 +322,50 @@ def check_case(res: dict, name: str, kw: dict, steps: int, precision: str) -> No
     assert res["step"] == [first + steps] * 3
     assert res["unit"] < (1e-14 if precision == "float64" else 1e-15)
     assert res["inside"]
+
+
+@pytest.fixture(scope="module")
+def simulated_extended():
+    """The default extension cases and the extended ensemble, in two subprocesses."""
+    half = len(EXTENDED) // 2
+    return simulate({"extended": EXTENDED[:half], "extended_ensemble": True}, {"extended": EXTENDED[half:]})
+
+
+@pytest.fixture(scope="module")
+def simulated_more_extended():
+    half = len(MORE_EXTENDED) // 2
+    return simulate({"extended": MORE_EXTENDED[:half]}, {"extended": MORE_EXTENDED[half:]})
+
+
+def check_extended(res: dict, key: str) -> None:
+    """One step at a time against the reference from the same state: positions, headings,
+    polar order and the moment sums (per species, nematic products) to rounding; no
+    particle beyond a wall or inside an obstacle."""
+    tol = 1e-12 if key.endswith("float64") else 2e-5
+    assert res["dp"] < tol and res["dh"] < tol and res["dphi"] < tol
+    assert res["dmoments"] < (1e-10 if key.endswith("float64") else 2e-3)
+    assert res["width"][0] == res["width"][1]
+    assert res["inside"] and not res["in_obstacle"]
+
+
+@pytest.mark.parametrize("key", EXTENDED)
+def test_simulated_extensions_match_reference(simulated_extended, key):
+    check_extended(simulated_extended["extended"][key], key)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", MORE_EXTENDED)
+def test_more_simulated_extensions_match_reference(simulated_more_extended, key):
+    check_extended(simulated_more_extended["extended"][key], key)
+
+
+def test_simulated_extended_replicas_equal_single_runs(simulated_extended):
+    """Replicas with their own chirality, field strength, noise and seed give bit for bit
+    what each gives alone (polar order, moment sums, state), and an ensemble run records
+    each species' polar order and the nematic order."""
+    res = simulated_extended["extended_ensemble"]
+    assert all(res["phi"]) and all(res["moments"]) and all(res["state"])
+    assert res["columns"][-3:] == ["polar_order_A", "polar_order_B", "nematic_order"]
 
 
 def test_simulated_clustered_run_is_deterministic(simulated):
@@ -349,6 +468,29 @@ def test_device_step_matches_reference(dim, neighbours):
         gpu_backend.advance(1)
         ref.advance(1)
         assert np.abs(gpu_backend.state.headings - ref.state.headings).max() < 1e-12
+
+
+@pytest.mark.gpu
+@gpu
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("name", ["all-with-delay", "three-species", "topological", "topological-delay-nematic"])
+def test_device_extensions_match_reference(dim, name):
+    """Each extension on the device against the reference, one step at a time from the
+    reference's state (1500 particles), moment sums included."""
+    from flocking.backends.cuda import CUDABackend
+    from test_extensions import EXTENSIONS, assert_same_state, make
+
+    options = dict(EXTENSIONS[name], n=1500, box=20.0 if dim == 2 else 8.0)
+    if "species" in options and "n" in options["species"][0]:
+        options["species"] = [{**options["species"][0], "n": 500}, {**options["species"][1], "n": 1000}]
+    model = make(dim, options)
+    state = flocking.State.random(model)
+    for _ in range(3):
+        gpu_backend, ref = CUDABackend(model, state), ReferenceBackend(model, state)
+        np.testing.assert_allclose(gpu_backend.advance(1), ref.advance(1), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(gpu_backend.moments, ref.moments, rtol=0, atol=1e-9)
+        assert_same_state(gpu_backend.state, ref.state, model)
+        state = ref.state
 
 
 @pytest.mark.gpu

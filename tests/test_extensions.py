@@ -403,14 +403,19 @@ def test_resume_with_extensions_is_exact(tmp_path):
     assert np.array_equal(whole.state.headings, resumed.state.headings)
 
 
-def test_cuda_refuses_extensions_in_one_line_naming_them():
-    from flocking.backends.cuda import check_supported
+def test_cuda_refuses_only_more_moment_sums_than_its_shared_memory_holds():
+    """The cuda backend runs every extension (tests/test_cuda.py, under the simulator); it
+    refuses in one line a model whose moment sums a step (dim per species, the nematic
+    products) exceed what its kernels reduce in shared memory."""
+    from flocking.backends.cuda import MAX_WIDTH, check_supported
 
-    model = Model(n=10, box=5.0, boundary="wall", vision=2.0, species=[{"fraction": 0.5}, {"fraction": 0.5}])
-    with pytest.raises(ParameterError, match=r"^backend: 'cuda' does not run the extensions yet \(this model has "
-                                             r"walls, species, vision\): use 'cpu'$"):
-        check_supported([Model(n=10, box=5.0), model])
-    check_supported([Model(n=10, box=5.0)])  # the plain model runs
+    check_supported([Model(n=10, box=5.0), make(2, {**EXTENSIONS["all-with-delay"], **EXTENSIONS["species-coupling"]})])
+    many = Model(dim=3, n=60, box=5.0, species=[{"n": 12}] * 5, alignment_rule="nematic")
+    assert 3 * 5 + 6 > MAX_WIDTH
+    with pytest.raises(ParameterError, match=r"^species: the cuda backend records at most 20 sums a step \(5 species "
+                                             r"in 3D and the nematic order need 21\): use 'cpu'$"):
+        check_supported([many])
+    check_supported([many.replace(species=[{"n": 15}] * 4)])  # 18 sums fit
     # every extension has a name, and only a model with one is extended
     every = make(2, {**EXTENSIONS["all-with-delay"], **EXTENSIONS["species-coupling"]})
     assert every.extensions == ("walls", "obstacles", "species", "coupling", "vision", "nematic alignment",

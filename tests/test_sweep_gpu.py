@@ -218,8 +218,8 @@ def test_an_ensemble_that_cannot_start_fails_each_point_and_a_bad_start_fails_al
     (["sweep", "g.toml", "--backend", "cuda", "--workers", "2"], "workers: a cuda sweep without --scheduler runs"),
     (["sweep", "c.toml", "--backend", "cpu"], "backend: the sweep file sweeps over backend ([grid])"),
     (["sweep", "f.toml", "--backend", "cpu"], "grid point {noise = 0.5}: precision: 'float32' needs the cuda"),
-    (["sweep", "e.toml", "--backend", "cuda"], "grid point {noise = 0.5}: backend: 'cuda' does not run the "
-                                               "extensions yet"),
+    (["sweep", "e.toml", "--backend", "cuda"], "grid point {noise = 0.5}: species: the cuda backend records at "
+                                               "most 20 sums a step (5 species in 3D and the nematic order need 21)"),
 ])
 def test_cuda_sweep_errors_are_one_line_and_nothing_is_written(tmp_path, args, text):
     from click.testing import CliRunner
@@ -227,7 +227,8 @@ def test_cuda_sweep_errors_are_one_line_and_nothing_is_written(tmp_path, args, t
     plain = TINY.replace('backend = "cuda"\n', "")
     files = {"g.toml": plain, "c.toml": plain.replace("noise = [0.5, 4.0]", 'backend = ["cpu", "cuda"]'),
              "f.toml": plain.replace("steps = 5", 'steps = 5\nprecision = "float32"'),
-             "e.toml": plain.replace("steps = 5", 'steps = 5\nboundary = "wall"')}
+             "e.toml": plain.replace("n = 16", "n = 20").replace(  # 5 x 3 + 6 moment sums a step
+                 "steps = 5", 'steps = 5\ndim = 3\nalignment_rule = "nematic"\nspecies = [' + ", ".join(["{n = 4}"] * 5) + "]")}
     runner = CliRunner()
     with contextlib.chdir(tmp_path):
         for name, content in files.items():

@@ -120,6 +120,10 @@ class Ensemble:
             return self._engine.memory()
         return [b.memory() for b in self._singles]
 
+    def _moments(self, r: int) -> np.ndarray:
+        """Replica ``r``'s moment sums of the steps of the last :meth:`advance`."""
+        return self._engine.moments[r] if self._engine is not None else self._singles[r].moments
+
     def replica(self, r: int) -> Replica:
         """Replica ``r`` as a writer sees a simulation (see :class:`Replica`)."""
         if not 0 <= r < self.replicas:
@@ -143,9 +147,9 @@ class Ensemble:
         for view, info in zip(views, infos or ()):
             view.info = dict(info)
         everyone = [(view, w) for view in views for w in view.writers]
-        # replicas with observables beyond the polar order (per species, nematic): only
-        # single-system backends run such models, and keep their moment sums
-        records_extra = [self._singles is not None and bool(extra_names(view.model)) for view in views]
+        # replicas with observables beyond the polar order (per species, nematic), from
+        # the moment sums of their steps
+        records_extra = [bool(extra_names(view.model)) for view in views]
         first = step = self.step
         last = first + int(steps)
         out = np.empty((self.replicas, int(steps)))
@@ -160,7 +164,7 @@ class Ensemble:
                 out[:, step - first:target - first] = phi
                 done = np.arange(step + 1, target + 1)
                 step = target
-                extra = [view.extra_observables(self._singles[view.index].moments) if recorded else None
+                extra = [view.extra_observables(self._moments(view.index)) if recorded else None
                          for view, recorded in zip(views, records_extra)]
                 for view, w in everyone:
                     w.observe(done, phi[view.index], extra[view.index])

@@ -27,6 +27,11 @@ state by running (so a checkpoint needs only the delay ring), and a replica of a
 ensemble gives bit for bit what the same model alone gives. Neighbour sums follow that
 order and the polar order is reduced in fixed blocks of each replica.
 
+Extensions (walls, obstacles, species and coupling, vision cones, nematic alignment,
+chirality, a field) run in kernels compiled for what the model has on
+(:func:`extensions`); :attr:`Engine.moments` then holds each step's per-species and
+nematic moment sums, from which :class:`flocking.Simulation` records their observables.
+
 Cells are those of the CPU backend (:func:`flocking.backends.cpu.cell_grid`): at least
 ``R`` wide, at most about one per particle, with no capacity per cell: a band or a
 single cell may hold any number of particles, and the sort costs the same.
@@ -37,6 +42,8 @@ raises :class:`flocking.ParameterError` with one line that says so.
 
 from __future__ import annotations
 
+import math
+import sys
 import warnings
 from collections.abc import Sequence
 
@@ -52,10 +59,16 @@ PRECISIONS = ("float64", "float32")
 #: simulator (one Python thread per GPU thread: small blocks keep it quick)
 _GPU_SHAPE, _SIM_SHAPE = (256, 8, 8), (16, 4, 4)
 
-#: parameters every replica of an ensemble shares (they fix the cells and the arrays)
-SHARED = ("dim", "n", "box", "radius", "neighbours", "k", "noise_type", "update", "dt")
+#: parameters every replica of an ensemble shares (they fix the cells, the arrays and the
+#: kernels' extensions)
+SHARED = ("dim", "n", "box", "radius", "neighbours", "k", "noise_type", "update", "dt",
+          "boundary", "obstacles", "species", "coupling", "vision", "alignment_rule", "field")
 #: parameters a replica may have of its own
-PER_REPLICA = ("seed", "noise", "alignment", "speed", "speeds", "delay")
+PER_REPLICA = ("seed", "noise", "alignment", "speed", "speeds", "delay", "chirality", "field_strength")
+
+#: most moment sums a step (``dim`` per species, then the nematic products) the kernels
+#: reduce in shared memory
+MAX_WIDTH = 20
 
 #: most replicas of one engine (blocks of one replica's reduction are a grid dimension)
 MAX_REPLICAS = 2**20
@@ -83,6 +96,41 @@ def _simulated() -> bool:
     return bool(config.ENABLE_CUDASIM)
 
 
+def _serialise_shared_arrays() -> None:
+    """Make numba's CUDA simulator hand every thread of a block the same shared array.
+
+    The simulator runs a block's threads as Python threads and finds a call site's shared
+    array by a look-up then an insertion in a dict; a thread switched out between the two
+    lets another allocate a second array, so under load two threads of a block could see
+    different "shared" memory. Here the look-up and the insertion are one locked step
+    (once a process; the simulator only)."""
+    import threading
+
+    from numba.core import types
+    from numba.cuda.simulator import kernelapi
+    from numba.np import numpy_support
+
+    shared = kernelapi.FakeCUDAShared
+    if getattr(shared.array, "serialised", False):
+        return
+    lock, allocate = threading.Lock(), shared.array
+
+    def array(self, shape, dtype):
+        if shape == 0:  # dynamic shared memory: one buffer, no look-up
+            return allocate(self, shape, dtype)
+        caller = sys._getframe(1)
+        key = (caller.f_code.co_filename, caller.f_lineno)  # the call site, as the simulator's
+        with lock:
+            found = self._allocations.get(key)
+            if found is None:
+                kind = numpy_support.as_dtype(dtype) if isinstance(dtype, types.Type) else dtype
+                found = self._allocations[key] = np.empty(shape, kind)
+        return found
+
+    array.serialised = True
+    shared.array = array
+
+
 def ensemble_key(model: Model) -> tuple:
     """What replicas of one ensemble must share: models with equal keys can run together.
 
@@ -91,8 +139,10 @@ def ensemble_key(model: Model) -> tuple:
     True
     >>> ensemble_key(a) == ensemble_key(a.replace(radius=1.5))
     False
+    >>> ensemble_key(a) == ensemble_key(a.replace(chirality=0.1))  # plain and extended kernels
+    False
     """
-    return tuple(getattr(model, name) for name in SHARED)
+    return tuple(getattr(model, name) for name in SHARED) + (model.extended,)
 
 
 class Engine:
@@ -101,7 +151,8 @@ class Engine:
     ``models`` share :data:`SHARED` and may differ in :data:`PER_REPLICA`; ``states`` (one
     per model, all at the same step) and ``memories`` (what :meth:`memory` gave, or
     ``None``) are loaded as given; ``graphs=False`` launches every kernel from the host
-    instead of replaying a captured CUDA graph (the results are the same).
+    instead of replaying a captured CUDA graph (the results are the same). After
+    :meth:`advance`, ``moments`` holds every replica's moment sums of those steps.
     """
 
     def __init__(self, models: Sequence[Model], states: Sequence[State],
@@ -136,11 +187,16 @@ class Engine:
             # (intended) wrap-around of the multiplications
             warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning,
                                     "flocking.backends.cuda_kernels")
+            # a first warning adds its registry to the module's globals, which the
+            # simulator's threads may be iterating over: have it there beforehand
+            vars(sys.modules["flocking.backends.cuda_kernels"]).setdefault("__warningregistry__", {})
+            _serialise_shared_arrays()
         block, bits, items = _SIM_SHAPE if simulated else _GPU_SHAPE
         k = model.k if model.neighbours == "topological" else 0
-        self._k = kernels = build(precision, d, k, block, bits, items)
+        self._k = kernels = build(precision, d, k, block, bits, items, extensions(model))
         real = kernels.real
         self._real = real
+        self._width = kernels.width
 
         box = np.asarray(model.box, dtype=np.float64)
         nc = cell_grid(model)
@@ -155,12 +211,16 @@ class Engine:
         self._rows = max(1, min(1024, 2**22 // max(1, r * d)))
         ints = dict(nc0=nc3[0], nc1=nc3[1], nc2=nc3[2], n=n, cells=cells, replicas=r,
                     vectorial=int(model.noise_type == "vectorial"), backward=int(model.update == "backward"),
-                    speeds=int(per_particle), rows=self._rows)
+                    speeds=int(per_particle), rows=self._rows, obstacles=len(model.obstacles))
         # the values are converted to `real` one by one, exactly as the kernels' constants
         self._geom = cuda.to_device(np.array([real(geom[name]) for name in GEOM], dtype=real))
         self._ints = cuda.to_device(np.array([ints[name] for name in INTS], dtype=np.int64))
-        self._rp = cuda.to_device(np.array([[real(x.noise), real(x.alignment), real(x.speed)] for x in models],
+        # a constant speed is the state's (a species may set it apart from model.speed)
+        self._speed = [real(s.speeds[0] if s.n else x.speed) for x, s in zip(models, states)]
+        self._rp = cuda.to_device(np.array([[real(x.noise), real(x.alignment), v] for x, v in zip(models, self._speed)],
                                            dtype=real))
+        for name, value in extension_arrays(models, real).items():
+            setattr(self, name, cuda.to_device(value))
         self._rtau = cuda.to_device(np.array([x.delay for x in models], dtype=np.int64))
         self._rseed = cuda.to_device(np.array([x.seed for x in models], dtype=np.uint64))
         self._per_particle = per_particle
@@ -178,8 +238,10 @@ class Engine:
         start = np.zeros(r * cells + 1, dtype=np.int32)
         start[-1] = m
         self._start = cuda.to_device(start)
-        self._partial = dev((d, r * self._qb), np.float64)
-        self._phi = cuda.to_device(np.zeros((r, self._rows, d)))
+        self._partial = dev((self._width, r * self._qb), np.float64)
+        self._phi = cuda.to_device(np.zeros((r, self._rows, self._width)))
+        self._species = len(model.species_counts) if model.extended else 1
+        self.moments = np.zeros((r, 0, self._width))
         self._clock = cuda.to_device(np.array([states[0].step, 1], dtype=np.int64))
         self._hist = cuda.to_device(np.zeros(kernels.max_passes * kernels.digits_per_pass, dtype=np.int32))
         self._tile_counter = cuda.to_device(np.zeros(kernels.max_passes, dtype=np.int32))
@@ -196,11 +258,11 @@ class Engine:
     def _load(self, states: list[State], memories: Sequence[dict | None]) -> None:
         """Upload the states (id order) into the ``new_*`` buffers, then sort them in."""
         real, n, d = self._real, self.n, self.dim
-        box = np.asarray(self.models[0].box)
+        box = _periodic_box(self.models[0])
         pos, head = np.empty((d, self.replicas * n), real), np.empty((d, self.replicas * n), real)
         for r, s in enumerate(states):
             p = s.positions.astype(real)
-            p = np.where(p >= box.astype(real), p - box.astype(real), p)  # rounding may reach L
+            p = np.where(p >= box.astype(real), p - box.astype(real), p)  # rounding may reach L (not at a wall)
             pos[:, r * n:(r + 1) * n] = p.T
             head[:, r * n:(r + 1) * n] = s.headings.T
         self._new_pos.copy_to_device(pos)
@@ -240,7 +302,8 @@ class Engine:
         k.step[self.replicas * self._qb, self._block, stream](
             self._pos, self._head, self._spd, self._ids, self._start, self._geom, self._ints,
             self._rp, self._rtau, self._rseed, self._clock, self._ring, prime,
-            self._new_pos, self._new_head, self._new_ids, self._new_spd, self._rec)
+            self._new_pos, self._new_head, self._new_ids, self._new_spd, self._rec,
+            self._sp, self._bounds, self._cpl, self._xr, self._obs)
         if not prime:
             self._sort(tick=True, stream=stream)
 
@@ -252,7 +315,7 @@ class Engine:
                      self._tile_counter, self._clock, tick, stream)
         k.gather[self.replicas * self._qb, block, stream](
             src, self._new_pos, self._new_head, self._new_ids, self._new_spd, self._ints,
-            self._pos, self._head, self._ids, self._spd, self._start, self._partial)
+            self._pos, self._head, self._ids, self._spd, self._start, self._partial, self._bounds)
         k.finish[self.replicas, block, stream](self._partial, self._ints, self._phi, self._clock, self._hist,
                                                self._tile_counter, tick)
 
@@ -286,9 +349,13 @@ class Engine:
         return self._rows
 
     def advance(self, steps: int) -> np.ndarray:
-        """Take ``steps`` steps; the polar order of every replica after each, ``(R, steps)``."""
+        """Take ``steps`` steps; the polar order of every replica after each, ``(R, steps)``.
+        With extensions, :attr:`moments` holds every replica's moment sums of these steps
+        (:func:`flocking.observables.moment_sums`), ``(R, steps, width)``."""
         steps = int(steps)
         out = np.empty((self.replicas, steps))
+        self.moments = np.empty((self.replicas, steps, self._width))
+        d = self.dim
         done = 0
         while done < steps:
             chunk = min(self._rows, steps - done)
@@ -302,7 +369,9 @@ class Engine:
                         self._graph = self._capture()
             rows = (self._step_count + 1 + np.arange(chunk)) % self._rows
             sums = self._phi.copy_to_host()[:, rows]
-            out[:, done:done + chunk] = np.sqrt(np.sum(sums * sums, axis=2)) / self.n
+            self.moments[:, done:done + chunk] = sums
+            total = sums[..., :d * self._species].reshape(self.replicas, chunk, self._species, d).sum(axis=2)
+            out[:, done:done + chunk] = np.sqrt(np.sum(total * total, axis=2)) / self.n
             self._step_count += chunk
             done += chunk
         return out
@@ -313,7 +382,7 @@ class Engine:
         ids = self._ids.copy_to_host()
         pos_all, head_all = self._pos.copy_to_host(), self._head.copy_to_host()
         spd_all = self._spd.copy_to_host() if self._per_particle else None
-        box = np.asarray(self.models[0].box)
+        box = _periodic_box(self.models[0])
         out = []
         for r, model in enumerate(self.models):
             lo, hi = r * n, (r + 1) * n
@@ -325,10 +394,10 @@ class Engine:
                 spd = np.empty(n)
                 spd[pid] = spd_all[lo:hi]
             else:
-                spd = np.broadcast_to(np.float64(self._real(model.speed)), (n,))
+                spd = np.broadcast_to(np.float64(self._speed[r]), (n,))
             if self.precision != "float64":
                 head /= np.linalg.norm(head, axis=1, keepdims=True)
-                pos = np.where(pos >= box, pos - box, pos)  # float32(L) may exceed L: fold back
+                pos = np.where(pos >= box, pos - box, pos)  # float32(L) may exceed L: fold back (not at a wall)
             out.append(State(pos, head, spd, self._step_count))
         return out
 
@@ -374,6 +443,8 @@ def radix_sort(records: np.ndarray, key_bits: int = 31, shape: tuple[int, int, i
     cuda = _cuda()
     from .cuda_kernels import build, passes
 
+    if _simulated():
+        _serialise_shared_arrays()
     block, bits, items = shape or (_SIM_SHAPE if _simulated() else _GPU_SHAPE)
     k = build("float64", 2, 0, block, bits, items)
     records = np.ascontiguousarray(records, dtype=np.uint64)
@@ -388,13 +459,67 @@ def radix_sort(records: np.ndarray, key_bits: int = 31, shape: tuple[int, int, i
     return _radix(k, rec, rec2, m, passes(key_bits, bits), hist, status, tiles, clock, False).copy_to_host()
 
 
+def _periodic_box(model: Model) -> np.ndarray:
+    """The box lengths along periodic axes, infinity along walls: a coordinate at or
+    above it is folded back by ``L`` (a coordinate may be exactly ``L`` at a wall)."""
+    return np.where(np.asarray(model.walls), np.inf, np.asarray(model.box, dtype=np.float64))
+
+
+def extensions(model: Model):
+    """What the kernels of ``model`` fix at compile time
+    (:class:`flocking.backends.cuda_kernels.Extensions`), or None for the plain model.
+
+    >>> extensions(Model(n=10, box=5.0)) is None
+    True
+    >>> extensions(Model(n=10, box=5.0, boundary="wall,periodic", vision=2.0))
+    Extensions(walls=(True, False, False), cone=True, nematic=False, coupling=False, species=1)
+    """
+    if not model.extended:
+        return None
+    from .cuda_kernels import Extensions
+
+    walls = tuple(model.walls) + (False,) * (3 - model.dim)
+    return Extensions(walls=walls, cone="vision" in model.extensions, nematic=model.alignment_rule == "nematic",
+                      coupling=model.coupling is not None, species=len(model.species_counts))
+
+
+def extension_arrays(models: Sequence[Model], real) -> dict[str, np.ndarray]:
+    """The step kernel's extension arguments for replicas ``models`` (which share
+    :data:`SHARED`), by the engine's attribute names: ``_sp`` ``(R, S, 4)`` per replica and
+    species (noise, alignment, ``chirality * dt``, field strength), ``_bounds`` (the first
+    id of each species, then ``N``), ``_cpl`` the coupling, ``_xr`` (the field's direction,
+    the cosine of the vision half-angle) and ``_obs`` (centre, radius; one unused row when
+    there are none). The plain model's kernels take them and read none."""
+    from .cuda_kernels import SPECIES
+
+    model = models[0]
+    d = model.dim
+    sp = np.array([[[x.species_values(name)[s] for name in ("noise", "alignment", "chirality", "field_strength")]
+                    for s in range(len(x.species_counts))] for x in models], dtype=np.float64)
+    sp[..., SPECIES.index("turn")] *= model.dt
+    count = len(model.species_counts)
+    cpl = np.ones((count, count)) if model.coupling is None else np.array(model.coupling, dtype=np.float64)
+    g = np.zeros(3)
+    if model.field is not None:
+        g[:d] = model.field_direction
+    obs = np.array([[*o.centre, o.radius] for o in model.obstacles], dtype=np.float64).reshape(-1, d + 1)
+    return {"_sp": sp.astype(real), "_bounds": np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64),
+            "_cpl": cpl.astype(real), "_xr": np.array([*g, math.cos(model.vision)]).astype(real),
+            "_obs": (obs if len(obs) else np.zeros((1, d + 1))).astype(real)}
+
+
 def check_supported(models: Sequence[Model]) -> None:
-    """Refuse, in one line naming them, models this backend does not run yet: those with
-    extensions (:attr:`flocking.Model.extensions`)."""
-    on = [name for m in models for name in m.extensions]
-    if on:
-        names = ", ".join(dict.fromkeys(on))
-        raise ParameterError(f"backend: 'cuda' does not run the extensions yet (this model has {names}): use 'cpu'")
+    """Refuse, in one line, models whose moment sums (``dim`` per species, then the
+    nematic products) do not fit the kernels' shared memory (:data:`MAX_WIDTH`)."""
+    from ..observables import moment_width
+
+    for model in models:
+        width = moment_width(model) if model.extended else model.dim
+        if width > MAX_WIDTH:
+            nematic = " and the nematic order" if model.alignment_rule == "nematic" else ""
+            raise ParameterError(
+                f"species: the cuda backend records at most {MAX_WIDTH} sums a step ({len(model.species_counts)} "
+                f"species in {model.dim}D{nematic} need {width}): use 'cpu'")
 
 
 def check_models(models: Sequence[Model]) -> None:
@@ -409,6 +534,9 @@ def check_models(models: Sequence[Model]) -> None:
             if getattr(model, name) != getattr(first, name):
                 raise ParameterError(f"models: every replica must have the same {name} "
                                      f"(model 0 has {getattr(first, name)!r}, model {i} {getattr(model, name)!r})")
+        if model.extended != first.extended:
+            raise ParameterError(f"models: every replica must have extensions or none (model 0 has "
+                                 f"{list(first.extensions)}, model {i} {list(model.extensions)})")
 
 
 class CUDABackend:
@@ -447,6 +575,13 @@ class CUDABackend:
     def frame_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Centred positions and velocities, float32 ``(N, 3)`` in id order (a GSD frame's)."""
         return frame_arrays(self.state, self.model.box)
+
+    @property
+    def moments(self) -> np.ndarray:
+        """The moment sums of each step of the last :meth:`advance`, ``(steps, width)``
+        (:func:`flocking.observables.moment_sums`: per species ``sum u``, then the nematic
+        products)."""
+        return self._engine.moments[0]
 
     def advance(self, steps: int) -> np.ndarray:
         """Take ``steps`` steps; return the polar order after each (one copy per

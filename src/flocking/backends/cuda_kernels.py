@@ -40,6 +40,15 @@ the step number lives on the device in ``clock[0]``):
     per replica, the block sums in a fixed order into one row of the polar-order table;
     resets the sort's counters.
 
+Extensions (:class:`Extensions`, fixed at compile time; the plain model's kernels have
+none of their code): the step weighs each neighbour by the coupling of the two species and
+the nematic sign and keeps only those in the vision cone, takes the species' noise,
+alignment, chirality and field strength, and after the move folds positions back across
+walls and out of obstacles (:mod:`flocking.backends.cpu_extensions`, transcribed); along
+an axis with walls there is no minimum image and wrapped cells are shifted out of reach.
+``gather`` and ``finish`` then sum, per block and per replica, each species' headings and
+the nematic products (``width`` sums a step instead of ``dim``).
+
 Safety: cells are clamped (:func:`cell_of`), ranges come from the cell starts, the sort
 never trusts its input beyond the number of particles: no kernel reads or writes out of
 bounds, whatever the coordinates (NaN, infinite, 1e300).
@@ -50,6 +59,7 @@ from __future__ import annotations
 import functools
 import math
 import types
+import typing
 
 import numpy as np
 from numba import cuda
@@ -65,9 +75,27 @@ _NOISE1 = np.uint64(rng.NOISE + 1)
 #: ``geom``, the real parameters shared by every replica, in this order
 GEOM = ("inv0", "inv1", "inv2", "l0", "l1", "l2", "r2", "width", "dt")
 #: ``ints``, the integer parameters (flags as 0/1)
-INTS = ("nc0", "nc1", "nc2", "n", "cells", "replicas", "vectorial", "backward", "speeds", "rows")
+INTS = ("nc0", "nc1", "nc2", "n", "cells", "replicas", "vectorial", "backward", "speeds", "rows", "obstacles")
 #: ``rp[r]``, the real parameters of one replica
 REPLICA = ("eta", "epsilon", "v0")
+#: ``xr``, the real parameters of the extensions, in this order
+EXT_REAL = ("g0", "g1", "g2", "cos_vision")
+#: ``sp[r, s]``, the values of species ``s`` in replica ``r``, in this order
+SPECIES = ("noise", "alignment", "turn", "field_strength")
+
+
+class Extensions(typing.NamedTuple):
+    """What :func:`build` fixes at compile time for a model with extensions: walls per
+    axis, a vision cone, nematic alignment, a coupling matrix, the number of species.
+    Obstacles, the field and chirality are data."""
+
+    walls: tuple[bool, bool, bool] = (False, False, False)
+    cone: bool = False
+    nematic: bool = False
+    coupling: bool = False
+    species: int = 1
+
+
 #: the sort record of a slot no particle fills: sorts after every real one
 SENTINEL = np.uint64(0xFFFFFFFFFFFFFFFF)
 _LOW = np.uint64(0xFFFFFFFF)
@@ -102,11 +130,20 @@ def passes(key_bits: int, bits: int) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -> types.SimpleNamespace:
+def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
+          ext: Extensions | None = None) -> types.SimpleNamespace:
     """The kernels for one precision (``"float64"``/``"float32"``), dimension, ``k``
     (0: metric), threads per block (a power of two), radix ``bits`` a pass (at most
-    ``log2(block)``, so that each digit has a thread) and sort items a thread."""
+    ``log2(block)``, so that each digit has a thread) and sort items a thread; with
+    ``ext``, those of a model with extensions (:class:`Extensions`: what is fixed at
+    compile time), else the plain model's, where no extension code is compiled in."""
     real = np.float64 if precision == "float64" else np.float32
+    EXT = ext is not None
+    ext = ext or Extensions()
+    WALL0, WALL1, WALL2 = ext.walls
+    CONE, NEM, CPL, SPECIES = ext.cone, ext.nematic, ext.coupling, ext.species
+    # rows of the per-step sums: dim per species, then the nematic products (2D: 2, 3D: 6)
+    WIDTH = dim * SPECIES + ((2 if dim == 2 else 6) if NEM else 0)
     ZERO, ONE, HALF, TWO, FOUR = real(0.0), real(1.0), real(0.5), real(2.0), real(4.0)
     TWO_PI, TINY, NEAR_X = real(2.0 * math.pi), real(1e-12), real(0.9)
     INF = real(np.inf)
@@ -171,8 +208,11 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         return 0
 
     @cuda.jit(device=True)
-    def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid):
+    def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, turn):
         z0 = real(uniform(seed, step, pid, _NOISE0))
+        if EXT and h != ZERO:
+            sx = sx + h * count * gx
+            sy = sy + h * count * gy
         if vectorial:
             angle = TWO_PI * z0
             sx = sx + eta * count * math.cos(angle)
@@ -188,6 +228,9 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
             a = epsilon * math.atan2(ux * my - uy * mx, ux * mx + uy * my)
             c, s = math.cos(a), math.sin(a)
             wx, wy = ux * c - uy * s, ux * s + uy * c
+        if EXT and turn != ZERO:
+            c, s = math.cos(turn), math.sin(turn)
+            wx, wy = wx * c - wy * s, wx * s + wy * c
         if not vectorial:
             a = eta * (z0 - HALF)
             c, s = math.cos(a), math.sin(a)
@@ -196,9 +239,13 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         return wx / norm, wy / norm
 
     @cuda.jit(device=True)
-    def update_3d(ux, uy, uz, sx, sy, sz, count, epsilon, eta, vectorial, seed, step, pid):
+    def update_3d(ux, uy, uz, sx, sy, sz, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, gz):
         z0 = real(uniform(seed, step, pid, _NOISE0))
         z1 = real(uniform(seed, step, pid, _NOISE1))
+        if EXT and h != ZERO:
+            sx = sx + h * count * gx
+            sy = sy + h * count * gy
+            sz = sz + h * count * gz
         if vectorial:
             z = TWO * z0 - ONE
             rho = math.sqrt(greater(ZERO, ONE - z * z))
@@ -275,22 +322,67 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         return g, ZERO
 
     @cuda.jit(device=True)
-    def metric_sums(i, cb, pos, head, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2, r2):
-        """Heading sum and number of the others within R of slot ``i``; ``cb`` is the
-        replica's first cell."""
+    def species_of(pid, bounds):
+        """The species of particle ``pid``: species are contiguous id ranges, species
+        ``s`` from ``bounds[s]`` to ``bounds[s + 1]``."""
+        s = 0
+        while s + 1 < SPECIES and pid >= bounds[s + 1]:
+            s += 1
+        return s
+
+    @cuda.jit(device=True)
+    def weight(i, j, head, ids, bounds, cpl, si):
+        """``J[s_i][s_j] c_ij``: the weight of neighbour ``j`` in the sum of ``i`` (the
+        coupling of their species, times -1 for nematic alignment if their headings point
+        apart); 1 in the plain model."""
+        w = ONE
+        if CPL:
+            w = cpl[si, species_of(ids[j], bounds)]
+        if NEM:
+            dot = head[0, i] * head[0, j] + head[1, i] * head[1, j]
+            if DIM == 3:
+                dot += head[2, i] * head[2, j]
+            if dot < ZERO:
+                w = -w
+        return w
+
+    @cuda.jit(device=True)
+    def seen(i, dx, dy, dz, d2, head, cosv):
+        """Whether the other at ``(dx, dy, dz)`` from slot ``i`` is inside its vision
+        cone, ``u_i . r >= |r| cos``; always without a cone."""
+        if not CONE:
+            return True
+        dot = head[0, i] * dx + head[1, i] * dy
+        if DIM == 3:
+            dot += head[2, i] * dz
+        return dot >= math.sqrt(d2) * cosv
+
+    @cuda.jit(device=True)
+    def metric_sums(i, cb, pos, head, ids, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2, r2,
+                    bounds, cpl, cosv, si):
+        """Weighted heading sum and number of the others within R of slot ``i`` (``cb``:
+        the replica's first cell). Along an axis with walls there is no minimum image and
+        wrapped cells are shifted by ``2L``, out of reach."""
         h0, h1, h2 = l0 / TWO, l1 / TWO, l2 / TWO
+        s0, s1, s2 = l0, l1, l2
+        if WALL0:
+            h0, s0 = INF, TWO * l0
+        if WALL1:
+            h1, s1 = INF, TWO * l1
+        if WALL2:
+            h2, s2 = INF, TWO * l2
         xi, yi = pos[0, i], pos[1, i]
         zi = pos[2, i] if DIM == 3 else ZERO
         cx, cy = cell_of(xi, inv0, nc0), cell_of(yi, inv1, nc1)
         cz = cell_of(zi, inv2, nc2) if DIM == 3 else 0
-        a0, a1, sha, b0, b1, shb = x_ranges(cx, nc0, l0)
+        a0, a1, sha, b0, b1, shb = x_ranges(cx, nc0, s0)
         sx, sy, sz = ZERO, ZERO, ZERO
         count = 0
         nz = lesser(nc2, 3) if DIM == 3 else 1
         for oz in range(nz):
-            gz, shz = row_of(cz, oz, nc2, l2) if DIM == 3 else (0, ZERO)
+            gz, shz = row_of(cz, oz, nc2, s2) if DIM == 3 else (0, ZERO)
             for oy in range(lesser(nc1, 3)):
-                gy, shy = row_of(cy, oy, nc1, l1)
+                gy, shy = row_of(cy, oy, nc1, s1)
                 row = cb + (gz * nc1 + gy) * nc0
                 for run in range(2):
                     if run == 0:
@@ -309,6 +401,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
                         else:
                             dy = minimum_image(pos[1, j] - yi, l1, h1)
                         d2 = dx * dx + dy * dy
+                        dz = ZERO
                         if DIM == 3:
                             if nc2 >= 3:
                                 dz = (pos[2, j] - zi) - shz
@@ -316,11 +409,20 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
                                 dz = minimum_image(pos[2, j] - zi, l2, h2)
                             d2 += dz * dz
                         if d2 < r2:
-                            sx += head[0, j]
-                            sy += head[1, j]
-                            if DIM == 3:
-                                sz += head[2, j]
-                            count += 1
+                            if EXT:
+                                if seen(i, dx, dy, dz, d2, head, cosv):
+                                    w = weight(i, j, head, ids, bounds, cpl, si)
+                                    sx += w * head[0, j]
+                                    sy += w * head[1, j]
+                                    if DIM == 3:
+                                        sz += w * head[2, j]
+                                    count += 1
+                            else:
+                                sx += head[0, j]
+                                sy += head[1, j]
+                                if DIM == 3:
+                                    sz += head[2, j]
+                                count += 1
         return sx, sy, sz, count
 
     @cuda.jit(device=True)
@@ -334,13 +436,22 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         return False
 
     @cuda.jit(device=True)
-    def topological(i, cb, pos, ids, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2, width, bd, bs):
+    def topological(i, cb, pos, head, ids, start, nc0, nc1, nc2, inv0, inv1, inv2, l0, l1, l2, width, bd, bs,
+                    cosv):
         """The K nearest others of slot ``i`` into ``bd``/``bs`` (distance^2, slot),
         nearest first, ties to the lower id; rings of cells outward until the K-th
         distance is inside the searched region (as the CPU backend). Every index into
         ``bd``/``bs`` is a loop counter over ``range(K)``, which the compiler unrolls, so
-        the K best live in registers. A NaN distance is never a candidate."""
+        the K best live in registers. A NaN distance is never a candidate. Along an axis
+        with walls there is no minimum image (the cells across it are far away); with a
+        vision cone, only the others inside it are candidates."""
         h0, h1, h2 = l0 / TWO, l1 / TWO, l2 / TWO
+        if WALL0:
+            h0 = INF
+        if WALL1:
+            h1 = INF
+        if WALL2:
+            h2 = INF
         xi, yi = pos[0, i], pos[1, i]
         zi = pos[2, i] if DIM == 3 else ZERO
         c0, c1 = cell_of(xi, inv0, nc0), cell_of(yi, inv1, nc1)
@@ -371,12 +482,14 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
                             if j == i:
                                 continue
                             dx = minimum_image(pos[0, j] - xi, l0, h0)
-                            d2 = dx * dx
-                            dx = minimum_image(pos[1, j] - yi, l1, h1)
-                            d2 += dx * dx
+                            dy = minimum_image(pos[1, j] - yi, l1, h1)
+                            d2 = dx * dx + dy * dy
+                            dz = ZERO
                             if DIM == 3:
-                                dx = minimum_image(pos[2, j] - zi, l2, h2)
-                                d2 += dx * dx
+                                dz = minimum_image(pos[2, j] - zi, l2, h2)
+                                d2 += dz * dz
+                            if EXT and not seen(i, dx, dy, dz, d2, head, cosv):
+                                continue
                             if not better(d2, j, bd, bs, K - 1, ids):
                                 continue
                             cd, cs = d2, j
@@ -394,15 +507,79 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
             r += 1
         return found
 
+    # -- walls and obstacles -----------------------------------------------------------
+
+    @cuda.jit(device=True)
+    def fold(x, u, length, wall):
+        """After a move, one coordinate and the heading's component along its axis:
+        folded back across a wall (the component turned into the box), or wrapped."""
+        if wall:
+            if x < ZERO:
+                return -x, abs(u)
+            if x > length:
+                return TWO * length - x, -abs(u)
+            return x, u
+        return wrap(x, length), u
+
+    @cuda.jit(device=True)
+    def bounce(x, y, z, wx, wy, wz, l0, l1, l2, obs, nobs):
+        """Walls, then each obstacle in order: a particle inside one is moved to its
+        mirror point ``c + (2a - d) n`` and its heading reflected if it points inward
+        (as :func:`flocking.backends.cpu_extensions._bounce`)."""
+        h0 = INF if WALL0 else l0 / TWO
+        h1 = INF if WALL1 else l1 / TWO
+        h2 = INF if WALL2 else l2 / TWO
+        x, wx = fold(x, wx, l0, WALL0)
+        y, wy = fold(y, wy, l1, WALL1)
+        if DIM == 3:
+            z, wz = fold(z, wz, l2, WALL2)
+        for o in range(nobs):
+            r0 = minimum_image(x - obs[o, 0], l0, h0)
+            r1 = minimum_image(y - obs[o, 1], l1, h1)
+            r2 = minimum_image(z - obs[o, 2], l2, h2) if DIM == 3 else ZERO
+            d2 = r0 * r0 + r1 * r1
+            if DIM == 3:
+                d2 += r2 * r2
+            dist = math.sqrt(d2)
+            radius = obs[o, DIM]
+            if dist < radius:
+                if dist > ZERO:
+                    n0, n1, n2 = r0 / dist, r1 / dist, r2 / dist
+                else:
+                    n0, n1, n2 = -wx, -wy, (-wz if DIM == 3 else ZERO)
+                push = TWO * radius - dist
+                x = obs[o, 0] + push * n0
+                y = obs[o, 1] + push * n1
+                if DIM == 3:
+                    z = obs[o, 2] + push * n2
+                if not WALL0:
+                    x = wrap(x, l0)
+                if not WALL1:
+                    y = wrap(y, l1)
+                if DIM == 3 and not WALL2:
+                    z = wrap(z, l2)
+                dot = wx * n0 + wy * n1
+                if DIM == 3:
+                    dot += wz * n2
+                if dot < ZERO:
+                    wx = wx - TWO * dot * n0
+                    wy = wy - TWO * dot * n1
+                    if DIM == 3:
+                        wz = wz - TWO * dot * n2
+        return x, y, z, wx, wy, wz
+
     # -- one step --------------------------------------------------------------------
 
     @cuda.jit
     def step(pos, head, spd, ids, start, geom, ints, rp, rtau, rseed, clock, ring, prime,
-             new_pos, new_head, new_ids, new_spd, rec):
+             new_pos, new_head, new_ids, new_spd, rec, sp, bounds, cpl, xr, obs):
         """One step of a slot into ``new_*[:, slot]`` and its sort record into
         ``rec[global id]``. ``ring[global id, t % tau]`` (tau > 0) holds the neighbour
         sums of tau steps ago and receives today's. With ``prime``, only fill every ring
-        slot with today's sums (the initial state stands in for the past)."""
+        slot with today's sums (the initial state stands in for the past). With
+        extensions: ``sp[r, species]`` (:data:`SPECIES`), the species' first ids
+        ``bounds``, the coupling ``cpl``, ``xr`` (:data:`EXT_REAL`) and the obstacles
+        ``obs`` (centre, radius; ``ints[10]`` of them); unused otherwise."""
         n = ints[3]
         qb = (n + BLOCK - 1) // BLOCK
         r = cuda.blockIdx.x // qb
@@ -413,23 +590,25 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         nc0, nc1, nc2, ncells = ints[0], ints[1], ints[2], ints[4]
         inv0, inv1, inv2, l0, l1, l2 = geom[0], geom[1], geom[2], geom[3], geom[4], geom[5]
         cb = r * ncells
+        pid = ids[i]
+        si = species_of(pid, bounds) if EXT else 0
         if K == 0:
-            sx, sy, sz, count = metric_sums(i, cb, pos, head, start, nc0, nc1, nc2,
-                                            inv0, inv1, inv2, l0, l1, l2, geom[6])
+            sx, sy, sz, count = metric_sums(i, cb, pos, head, ids, start, nc0, nc1, nc2,
+                                            inv0, inv1, inv2, l0, l1, l2, geom[6], bounds, cpl, xr[3], si)
         else:
             bd = cuda.local.array(KA, real)
             bs = cuda.local.array(KA, np.int64)
-            count = topological(i, cb, pos, ids, start, nc0, nc1, nc2, inv0, inv1, inv2,
-                                l0, l1, l2, geom[7], bd, bs)
+            count = topological(i, cb, pos, head, ids, start, nc0, nc1, nc2, inv0, inv1, inv2,
+                                l0, l1, l2, geom[7], bd, bs, xr[3])
             sx, sy, sz = ZERO, ZERO, ZERO
             for q in range(K):
                 if q < count:
                     j = bs[q]
-                    sx += head[0, j]
-                    sy += head[1, j]
+                    w = weight(i, j, head, ids, bounds, cpl, si) if EXT else ONE
+                    sx += w * head[0, j]
+                    sy += w * head[1, j]
                     if DIM == 3:
-                        sz += head[2, j]
-        pid = ids[i]
+                        sz += w * head[2, j]
         gid = r * n + pid
         total = ONE + real(count)
         t = clock[0]
@@ -444,7 +623,10 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
             osx, osy, osz, ototal = ring[gid, s, 0], ring[gid, s, 1], ring[gid, s, 2], ring[gid, s, 3]
             ring[gid, s, 0], ring[gid, s, 1], ring[gid, s, 2], ring[gid, s, 3] = sx, sy, sz, total
             sx, sy, sz, total = osx, osy, osz, ototal
-        eta, epsilon = rp[r, 0], rp[r, 1]
+        if EXT:
+            eta, epsilon, turn, h = sp[r, si, 0], sp[r, si, 1], sp[r, si, 2], sp[r, si, 3]
+        else:
+            eta, epsilon, turn, h = rp[r, 0], rp[r, 1], ZERO, ZERO
         vectorial = ints[6] != 0
         useed, ustep, upid = rseed[r], np.uint64(t), np.uint64(pid)
         if ints[8] != 0:
@@ -455,24 +637,30 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         if DIM == 2:
             ux, uy = head[0, i], head[1, i]
             wx, wy = update_2d(ux, uy, ux + sx, uy + sy, total, epsilon, eta, vectorial,
-                               useed, ustep, upid)
+                               useed, ustep, upid, h, xr[0], xr[1], turn)
+            mx, my = (wx, wy) if ints[7] != 0 else (ux, uy)
+            if EXT:
+                x, y, z, wx, wy, wz = bounce(pos[0, i] + ds * mx, pos[1, i] + ds * my, ZERO,
+                                             wx, wy, ZERO, l0, l1, l2, obs, ints[10])
+            else:
+                x = wrap(pos[0, i] + ds * mx, l0)
+                y = wrap(pos[1, i] + ds * my, l1)
             new_head[0, i], new_head[1, i] = wx, wy
-            if ints[7] == 0:
-                wx, wy = ux, uy
-            x = wrap(pos[0, i] + ds * wx, l0)
-            y = wrap(pos[1, i] + ds * wy, l1)
             new_pos[0, i], new_pos[1, i] = x, y
             c = cell_of(y, inv1, nc1) * nc0 + cell_of(x, inv0, nc0)
         else:
             ux, uy, uz = head[0, i], head[1, i], head[2, i]
             wx, wy, wz = update_3d(ux, uy, uz, ux + sx, uy + sy, uz + sz, total, epsilon, eta,
-                                   vectorial, useed, ustep, upid)
+                                   vectorial, useed, ustep, upid, h, xr[0], xr[1], xr[2])
+            mx, my, mz = (wx, wy, wz) if ints[7] != 0 else (ux, uy, uz)
+            if EXT:
+                x, y, z, wx, wy, wz = bounce(pos[0, i] + ds * mx, pos[1, i] + ds * my, pos[2, i] + ds * mz,
+                                             wx, wy, wz, l0, l1, l2, obs, ints[10])
+            else:
+                x = wrap(pos[0, i] + ds * mx, l0)
+                y = wrap(pos[1, i] + ds * my, l1)
+                z = wrap(pos[2, i] + ds * mz, l2)
             new_head[0, i], new_head[1, i], new_head[2, i] = wx, wy, wz
-            if ints[7] == 0:
-                wx, wy, wz = ux, uy, uz
-            x = wrap(pos[0, i] + ds * wx, l0)
-            y = wrap(pos[1, i] + ds * wy, l1)
-            z = wrap(pos[2, i] + ds * wz, l2)
             new_pos[0, i], new_pos[1, i], new_pos[2, i] = x, y, z
             c = (cell_of(z, inv2, nc2) * nc1 + cell_of(y, inv1, nc1)) * nc0 + cell_of(x, inv0, nc0)
         new_ids[i] = pid
@@ -656,31 +844,48 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         stride = BLOCK // 2
         while stride > 0:
             if tid < stride:
-                for a in range(DIM):
+                for a in range(WIDTH):
                     buf[a, tid] += buf[a, tid + stride]
             cuda.syncthreads()
             stride //= 2
 
     @cuda.jit
-    def gather(srt, new_pos, new_head, new_ids, new_spd, ints, pos, head, ids, spd, start, partial):
+    def gather(srt, new_pos, new_head, new_ids, new_spd, ints, pos, head, ids, spd, start, partial, bounds):
         """Slot ``s`` takes the particle the sort put there (``srt[s]`` holds the slot it
         came from); each cell's start is found by a binary search in the replica's sorted
-        records; each block's heading sum (float64) goes to ``partial``."""
-        buf = cuda.shared.array((DIM, BLOCK), np.float64)
+        records; each block's sums (float64) go to ``partial``: the heading sum, or with
+        extensions the heading sum of each species, then the nematic products (as
+        :func:`flocking.observables.moment_sums`)."""
+        buf = cuda.shared.array((WIDTH, BLOCK), np.float64)
         n, ncells = ints[3], ints[4]
         qb = (n + BLOCK - 1) // BLOCK
         r = cuda.blockIdx.x // qb
         tid = cuda.threadIdx.x
         local = (cuda.blockIdx.x % qb) * BLOCK + tid
-        for a in range(DIM):
+        for a in range(WIDTH):
             buf[a, tid] = 0.0
         if local < n:
             s = r * n + local
             o = np.int64(srt[s] & _LOW)
+            row = species_of(new_ids[o], bounds) * DIM if EXT else 0
             for a in range(DIM):
                 pos[a, s] = new_pos[a, o]
                 head[a, s] = new_head[a, o]
-                buf[a, tid] = np.float64(new_head[a, o])
+                buf[row + a, tid] = np.float64(new_head[a, o])
+            if NEM:
+                wx, wy = np.float64(new_head[0, o]), np.float64(new_head[1, o])
+                row = SPECIES * DIM
+                if DIM == 2:
+                    buf[row, tid] = wx * wx - wy * wy
+                    buf[row + 1, tid] = 2.0 * wx * wy
+                else:
+                    wz = np.float64(new_head[2, o])
+                    buf[row, tid] = wx * wx
+                    buf[row + 1, tid] = wy * wy
+                    buf[row + 2, tid] = wz * wz
+                    buf[row + 3, tid] = wx * wy
+                    buf[row + 4, tid] = wx * wz
+                    buf[row + 5, tid] = wy * wz
             ids[s] = new_ids[o]
             if ints[8] != 0:
                 spd[s] = new_spd[o]
@@ -696,7 +901,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
             start[r * ncells + local] = lo
         block_sum(buf, tid)
         if tid == 0:
-            for a in range(DIM):
+            for a in range(WIDTH):
                 partial[a, cuda.blockIdx.x] = buf[a, 0]
 
     @cuda.jit
@@ -704,7 +909,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
         """Block ``r``: replica ``r``'s block sums, in a fixed order, into row
         ``clock[0] % rows`` of ``phi`` (with ``tick``). Block 0 also readies the sort's
         counters for the next sort."""
-        buf = cuda.shared.array((DIM, BLOCK), np.float64)
+        buf = cuda.shared.array((WIDTH, BLOCK), np.float64)
         n = ints[3]
         qb = (n + BLOCK - 1) // BLOCK
         r = cuda.blockIdx.x
@@ -717,7 +922,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
             if tid == 0:
                 clock[1] += 1
         if tick:
-            for a in range(DIM):
+            for a in range(WIDTH):
                 acc = 0.0
                 for b in range(tid, qb, BLOCK):
                     acc += partial[a, r * qb + b]
@@ -725,10 +930,10 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int) -
             block_sum(buf, tid)
             if tid == 0:
                 row = clock[0] % ints[9]
-                for a in range(DIM):
+                for a in range(WIDTH):
                     phi[r, row, a] = buf[a, 0]
 
     return types.SimpleNamespace(
         real=real, step=step, cells=cells, digits=digits, scatter=scatter, gather=gather,
-        finish=finish, bits=BITS, digits_per_pass=DIGITS, tile=TILE, block=BLOCK, max_passes=PMAX,
+        finish=finish, bits=BITS, digits_per_pass=DIGITS, tile=TILE, block=BLOCK, max_passes=PMAX, width=WIDTH,
     )
