@@ -33,6 +33,8 @@ CASES = {
     "2d-clustered": (dict(box=8.0, noise=0.2), 2, "float64"),
     "3d-topological-delay": (dict(dim=3, neighbours="topological", k=4, delay=2), 3, "float64"),
     "2d-float32": (dict(), 2, "float32"),
+    # one species with its own speed: no extension, and the speed is the state's, not model.speed
+    "2d-one-species-speed": (dict(species=[{"fraction": 1.0, "speed": 0.3}]), 2, "float64"),
 }
 
 #: more cases, each option already covered above in another combination (``-m slow``: the
