@@ -110,6 +110,22 @@ with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False
     out["dask"] = [summary["done"], summary["where"]]
 dask = PointStore("dask")
 out["dask_identical"] = without_time({p.id: dask.load(p.id) for p in points}) == without_time(first)
+
+# the same grid with extensions (two species that anti-align, walls along y, a vision cone):
+# still one ensemble, the per-species observables in each record, as a single run gives them
+with open("ext.toml", "w") as f:
+    f.write(sys.argv[1].replace("[grid]", 'species = [{n = 8}, {n = 8, noise = 0.3}]\n'
+                                "coupling = [[1.0, -1.0], [-1.0, 1.0]]\nboundary = \"periodic,wall\"\n"
+                                "vision = 2.5\n\n[grid]"))
+spec = SweepSpec.load("ext.toml")
+points = spec.points()
+execute(spec, "ext", progress=False, report=lambda text: None)
+store = PointStore("ext")
+ext = records()
+out["ext_ensemble"] = [r.get("ensemble") for r in ext.values()]
+out["ext_extra"] = [sorted(r["extra"]) for r in ext.values()]
+alone = {p.id: run_point(task_of(p, "ext", spec, None)) for p in points}
+out["ext_same_as_alone"] = without_time(ext) == without_time(alone)
 print("RESULT" + json.dumps(out))
 """
 
@@ -133,6 +149,14 @@ def test_simulated_cuda_sweep_runs_one_ensemble_with_the_records_of_single_runs(
     for record in simulated["records"].values():
         assert record["first_step"] == 3 and record["samples"] == 3 and record["steps"] == 5
         assert "backend = \"cuda\"" in record["config"]
+
+
+def test_simulated_cuda_sweep_with_extensions_records_each_species(simulated):
+    """A grid with two anti-aligning species, walls and a vision cone runs as one ensemble
+    too, and each record holds each species' polar order, as the point run alone does."""
+    assert simulated["ext_ensemble"] == [4] * 4
+    assert simulated["ext_extra"] == [["polar_order_A", "polar_order_B"]] * 4
+    assert simulated["ext_same_as_alone"]
 
 
 def test_simulated_cuda_sweep_reruns_and_resumes_with_identical_records(simulated):

@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from .runner import fail, new_record, run_point, start_trajectory, summarise
+from ..observables import extra_names
+from .runner import Extra, fail, new_record, run_point, start_trajectory, summarise
 
 #: Most particles (replicas x n) of one ensemble, and most polar order values (replicas
 #: x steps) it returns at once: a group beyond either is split.
@@ -109,10 +110,12 @@ def _ensemble(items: list[tuple[dict[str, Any], Any, Any]]) -> list[dict[str, An
         first = items[0][1]
         ens = Ensemble([cfg.model for _, cfg, _ in items], [state for _, _, state in items],
                        backend=first.backend, precision=first.precision)
-        writers, infos = [], []
+        writers, infos, extras = [], [], []
         for task, cfg, _ in items:
             trajectory = start_trajectory(task, cfg)
-            writers.append([trajectory[0]] if trajectory else [])
+            # the observables of extended models (per species, nematic), as run_point keeps them
+            extras.append(Extra(ens.step + task["discard"]))
+            writers.append(([trajectory[0]] if trajectory else []) + ([extras[-1]] if extra_names(cfg.model) else []))
             infos.append({"run": trajectory[1]} if trajectory else {})
         phi = ens.run(first.steps, writers, infos)
     except Exception as err:  # the whole ensemble failed: so did each of its points
@@ -126,7 +129,7 @@ def _ensemble(items: list[tuple[dict[str, Any], Any, Any]]) -> list[dict[str, An
             fail(record, NonFiniteError(f"the run became non-finite at step {step}: a position or "
                                         f"heading is NaN or infinite"))
         else:
-            record.update(summarise(task, cfg, phi[r, task["discard"]:], ens.step))
+            record.update(summarise(task, cfg, phi[r, task["discard"]:], ens.step, extras[r].series))
             record["status"] = "done"
         record["elapsed"], record["ensemble"] = elapsed, len(items)
     return records
