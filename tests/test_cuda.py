@@ -243,6 +243,12 @@ def extended_ensemble():
     writers = [[flocking.ObservablesWriter(os.path.join(tempfile.mkdtemp(), "o.csv"))] for _ in models]
     ens.run(2, writers)
     res["columns"] = open(writers[0][0].path).readline().strip().split(",")
+    # every extension switched off: bit for bit the plain model
+    plain = flocking.Model(n=40, box=5.0, noise=0.8, seed=2)
+    off = plain.replace(boundary="periodic", obstacles=[], vision=np.pi, alignment_rule="polar", chirality=0.0,
+                        field_strength=0.0, coupling=[[1.0]], species=[{"fraction": 1.0}])
+    a, b = CUDABackend(plain, flocking.State.random(plain)), CUDABackend(off, flocking.State.random(off))
+    res["off_is_plain"] = bool((a.advance(3) == b.advance(3)).all()) and same_state(a.state, b.state)
     return res
 
 job = json.loads(sys.argv[1])
@@ -368,6 +374,10 @@ def test_simulated_extended_replicas_equal_single_runs(simulated_extended):
     res = simulated_extended["extended_ensemble"]
     assert all(res["phi"]) and all(res["moments"]) and all(res["state"])
     assert res["columns"][-3:] == ["polar_order_A", "polar_order_B", "nematic_order"]
+
+
+def test_simulated_extensions_switched_off_are_bitwise_the_plain_model(simulated_extended):
+    assert simulated_extended["extended_ensemble"]["off_is_plain"]
 
 
 def test_simulated_clustered_run_is_deterministic(simulated):
