@@ -141,9 +141,9 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
     EXT = ext is not None
     ext = ext or Extensions()
     WALL0, WALL1, WALL2 = ext.walls
-    CONE, NEM, CPL, SPECIES = ext.cone, ext.nematic, ext.coupling, ext.species
+    CONE, NEM, CPL, NSPECIES = ext.cone, ext.nematic, ext.coupling, ext.species
     # rows of the per-step sums: dim per species, then the nematic products (2D: 2, 3D: 6)
-    WIDTH = dim * SPECIES + ((2 if dim == 2 else 6) if NEM else 0)
+    WIDTH = dim * NSPECIES + ((2 if dim == 2 else 6) if NEM else 0)
     ZERO, ONE, HALF, TWO, FOUR = real(0.0), real(1.0), real(0.5), real(2.0), real(4.0)
     TWO_PI, TINY, NEAR_X = real(2.0 * math.pi), real(1e-12), real(0.9)
     INF = real(np.inf)
@@ -326,7 +326,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
         """The species of particle ``pid``: species are contiguous id ranges, species
         ``s`` from ``bounds[s]`` to ``bounds[s + 1]``."""
         s = 0
-        while s + 1 < SPECIES and pid >= bounds[s + 1]:
+        while s + 1 < NSPECIES and pid >= bounds[s + 1]:
             s += 1
         return s
 
@@ -874,7 +874,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
                 buf[row + a, tid] = np.float64(new_head[a, o])
             if NEM:
                 wx, wy = np.float64(new_head[0, o]), np.float64(new_head[1, o])
-                row = SPECIES * DIM
+                row = NSPECIES * DIM
                 if DIM == 2:
                     buf[row, tid] = wx * wx - wy * wy
                     buf[row + 1, tid] = 2.0 * wx * wy
