@@ -53,15 +53,14 @@ MORE_CASES = {
 
 #: extension cases of tests/test_extensions.py as ``name:dim:precision``, each against the
 #: reference under the simulator: every extension, in 2D and 3D, in the default run ...
-EXTENDED = ["walls:2:float64", "obstacles:3:float64", "three-species:2:float64", "nematic:3:float64",
-            "chirality:2:float64", "informed:2:float64", "all-with-delay:2:float64", "topological:2:float64",
-            "box-below-3R:3:float64", "all-with-delay:2:float32"]
+EXTENDED = ["all-with-delay:2:float64", "all-with-delay:3:float64", "three-species:2:float64", "informed:2:float64",
+            "topological:2:float64", "box-below-3R:3:float64", "all-with-delay:2:float32"]
 #: ... and every other combination with ``-m slow``
 MORE_EXTENDED = [f"{name}:{dim}:float64" for dim in (2, 3) for name in (
     "walls", "wall-one-axis", "obstacles", "species-coupling", "three-species", "vision", "nematic", "chirality",
     "field", "informed", "all-with-delay", "topological", "topological-delay-nematic", "box-below-3R")
     if f"{name}:{dim}:float64" not in EXTENDED and not (dim == 3 and name == "chirality")] + [
-    "topological:3:float32"]
+    "topological:3:float32", "obstacles:3:float32"]
 
 #: datasets of the sort test (see ``sorts`` in the harness)
 SORTS = ["one-cell", "three-crowded-cells", "random-12-bit"]

@@ -230,7 +230,7 @@ _ALL = np.uint64(2**64 - 1)  # a `last` that masks nothing
 @numba.njit(cache=True, inline="always")
 def _copy(x, y, z, hx, hy, hz, tag, lo, hi, shx, shy, shz, buf, m, d):
     """Append slots ``lo..hi`` to the buffer at ``m``, periodic shifts applied (and, unless
-    ``tag`` is None, ``tag[slot]`` into row ``2d``); returns the new end. Unsigned indices
+    ``tag`` is None, ``tag[:, slot]`` into rows ``2d, 2d + 1, ...``); returns the new end. Unsigned indices
     (here and in the reductions): numba then emits no negative-index wraparound, which
     would keep LLVM from vectorising the loops."""
     m = np.uint64(m)
@@ -243,7 +243,8 @@ def _copy(x, y, z, hx, hy, hz, tag, lo, hi, shx, shy, shz, buf, m, d):
             buf[2, m] = z[j] + shz
             buf[5, m] = hz[j]
         if tag is not None:  # pruned when compiling for None: the plain kernel never sees it
-            buf[2 * d, m] = tag[j]
+            for a in range(tag.shape[0]):
+                buf[2 * d + a, m] = tag[a, j]
         m += _U1
     return np.int64(m)
 
@@ -271,8 +272,8 @@ def _gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, ro
     add to a slot to find its copy). Each copy is followed by three zeroed entries, so a
     reduction may read whole groups of four past its end (and multiply them by 0).
     ``box`` gives the shifts: the box itself, or along an axis with walls a shift that
-    puts every wrapped copy out of reach. Unless ``tag`` is None, row ``2d`` gets
-    ``tag[slot]`` (the extensions' species).
+    puts every wrapped copy out of reach. Unless ``tag`` is None, rows ``2d, 2d + 1, ...``
+    get ``tag[:, slot]`` (the extensions' couplings to the slot's species).
     """
     nx, ny = nc[0], nc[1]
     gy, gz = line % ny, line // ny

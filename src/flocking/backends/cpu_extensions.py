@@ -253,11 +253,12 @@ def _accumulate(acc, i, new_head, ids, bounds, nematic):
 
 
 @numba.njit(cache=True)
-def _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jrow):
+def _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jr):
     """As :func:`flocking.backends.cpu._term_2d`, candidate ``j`` weighted: 0 unless it is
     in the vision cone of heading ``(ux, uy)`` (``a |a| >= cs d^2`` for ``a = u . r``,
     the cone test squared with its sign: ``cs`` is ``cos |cos|`` of the half-angle, -4
-    with no cone), times the coupling ``jrow`` to its species (row ``4``), times -1 if
+    with no cone), times the coupling in row ``jr`` of the buffer (the couplings of one
+    species to each candidate's, laid out by :func:`_gather_rows`), times -1 if
     ``fn`` is 1 (nematic alignment; else 0) and its heading points against ``u``. Selects
     and products, no branch, as there."""
     dx = buf[0, j] - xi
@@ -267,14 +268,14 @@ def _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jrow):
     d2 = dx * dx + dy * dy
     a = ux * dx + uy * dy
     inside = (d2 < r2) & (j <= last) & (a * abs(a) >= cs * d2)
-    w = jrow[np.int32(buf[4, j])] * (1.0 if inside else 0.0)
+    w = buf[jr, j] * (1.0 if inside else 0.0)
     w *= -1.0 if fn * (ux * vx + uy * vy) < 0.0 else 1.0
     return vx * w, vy * w, 1.0 if inside else 0.0
 
 
 @numba.njit(cache=True)
-def _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jrow):
-    """As :func:`_wterm_2d`, in 3D (species in row ``6``)."""
+def _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jr):
+    """As :func:`_wterm_2d`, in 3D."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi
@@ -284,22 +285,23 @@ def _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jrow):
     d2 = dx * dx + dy * dy + dz * dz
     a = ux * dx + uy * dy + uz * dz
     inside = (d2 < r2) & (j <= last) & (a * abs(a) >= cs * d2)
-    w = jrow[np.int32(buf[6, j])] * (1.0 if inside else 0.0)
+    w = buf[jr, j] * (1.0 if inside else 0.0)
     w *= -1.0 if fn * (ux * vx + uy * vy + uz * vz) < 0.0 else 1.0
     return vx * w, vy * w, vz * w, 1.0 if inside else 0.0
 
 
 @numba.njit(cache=True)
-def _wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cs, nematic, coupling, out, o):
+def _wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cs, nematic, out, o):
     """As :func:`flocking.backends.cpu._reduce_2d` (self included, four lanes), each
-    candidate weighted by :func:`_wterm_2d`; ``tag`` holds the species of the slots."""
+    candidate weighted by :func:`_wterm_2d`; ``tag`` holds the species of the slots, and
+    buffer row ``4 + s`` the coupling of species ``s`` to each candidate."""
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
         ux = hx[i]
         uy = hy[i]
         fn = 1.0 if nematic else 0.0
-        jrow = coupling[int(tag[i])]
+        jr = np.uint64(4 + int(tag[i]))
         a0 = a1 = a2 = a3 = 0.0
         b0 = b1 = b2 = b3 = 0.0
         n0 = n1 = n2 = n3 = 0.0
@@ -308,10 +310,10 @@ def _wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cs, nematic, couplin
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = _ALL if j < m4 else hi - _U1
-                p0, q0, w0 = _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jrow)
-                p1, q1, w1 = _wterm_2d(buf, j + _U1, last, xi, yi, ux, uy, fn, r2, cs, jrow)
-                p2, q2, w2 = _wterm_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, fn, r2, cs, jrow)
-                p3, q3, w3 = _wterm_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, fn, r2, cs, jrow)
+                p0, q0, w0 = _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jr)
+                p1, q1, w1 = _wterm_2d(buf, j + _U1, last, xi, yi, ux, uy, fn, r2, cs, jr)
+                p2, q2, w2 = _wterm_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, fn, r2, cs, jr)
+                p3, q3, w3 = _wterm_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, fn, r2, cs, jr)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
@@ -321,7 +323,7 @@ def _wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cs, nematic, couplin
 
 
 @numba.njit(cache=True)
-def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, coupling, out, o):
+def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, out, o):
     """As :func:`_wreduce_2d`, in 3D."""
     for i in range(i0, i1):
         xi = x[i]
@@ -331,7 +333,7 @@ def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, 
         uy = hy[i]
         uz = hz[i]
         fn = 1.0 if nematic else 0.0
-        jrow = coupling[int(tag[i])]
+        jr = np.uint64(6 + int(tag[i]))
         a0 = a1 = a2 = a3 = 0.0
         b0 = b1 = b2 = b3 = 0.0
         c0 = c1 = c2 = c3 = 0.0
@@ -341,12 +343,12 @@ def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, 
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = _ALL if j < m4 else hi - _U1
-                p0, q0, r0, w0 = _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jrow)
-                p1, q1, r1, w1 = _wterm_3d(buf, j + _U1, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jrow)
+                p0, q0, r0, w0 = _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jr)
+                p1, q1, r1, w1 = _wterm_3d(buf, j + _U1, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jr)
                 p2, q2, r2_, w2 = _wterm_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, fn, r2, cs,
-                                            jrow)
+                                            jr)
                 p3, q3, r3, w3 = _wterm_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, fn, r2, cs,
-                                           jrow)
+                                           jr)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
@@ -380,15 +382,21 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     nseg = (nx + _SEGMENT - 1) // _SEGMENT
     nunits = _work_units(nc, n, 0)
     nt = max(1, min(threads, nunits))
+    # per slot its species, and its coupling from each species: a unit's buffer holds the
+    # latter as rows, so a weighted sum reads one row (a load, not a look-up per pair)
     tag = np.empty(n)
+    cols = np.empty((coupling.shape[0], n))
     for i in numba.prange(n):
-        tag[i] = _species_of(ids[i], bounds)
+        s = _species_of(ids[i], bounds)
+        tag[i] = s
+        for a in range(coupling.shape[0]):
+            cols[a, i] = coupling[a, s]
     counter = np.zeros(1, dtype=np.int64)
     width = partial.shape[1]
     for t in numba.prange(nt):
         x, y, z = pos[0], pos[1], pos[d - 1]
         hx, hy, hz = head[0], head[1], head[d - 1]
-        buf = np.empty((2 * d + 1, 4096))
+        buf = np.empty((2 * d + coupling.shape[0], 4096))
         rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
         ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
         out = np.empty((4, 16))
@@ -397,8 +405,8 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
             u = _fetch_add(counter)
             if u >= nunits:
                 break
-            line, c0, c1, s0, s1, buf, out = _gather_unit(u, nseg, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf,
-                                                          rows, out, d)
+            line, c0, c1, s0, s1, buf, out = _gather_unit(u, nseg, x, y, z, hx, hy, hz, cols, start, nc, shifts,
+                                                          buf, rows, out, d)
             for cx in range(c0, c1):
                 c = line * nx + cx
                 _ranges(cx, nx, start, rows, ranges)
@@ -407,11 +415,11 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
                 elif not weighted:
                     _reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
                 elif d == 2:
-                    _wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, cs, nematic, coupling, out,
+                    _wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, cs, nematic, out,
                                 start[c] - s0)
                 else:
                     _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, cs, nematic,
-                                coupling, out, start[c] - s0)
+                                out, start[c] - s0)
             acc[:] = 0.0
             for i in range(s0, s1):
                 m = i - s0
