@@ -31,7 +31,7 @@ import numpy as np
 import flocking
 from flocking.backends.cuda import CUDABackend
 
-#: name -> (what, target particle-steps/s, or for "delay" the ratio to no delay)
+#: name -> (what, target particle-steps/s, or for "delay" and "extensions" the ratio to the plain model)
 CASES = {
     "2d-float32": ("2D, N = 1e7, density 2, float32", 5e9),
     "2d-float64": ("2D, N = 1e7, density 2, float64", 3.5e9),
@@ -41,6 +41,7 @@ CASES = {
     "ensemble": ("2D, 1024 replicas of N = 1024, seeds and noises differ, float32, summed", 3e9),
     "topological": ("2D, k = 7, N = 1e7, float32", 1.5e9),
     "delay": ("2D, delay 10 vs none, N = 1e7, float32: ratio", 0.8),
+    "extensions": ("2D, every extension on vs none, N = 1e7, float32: ratio", 0.5),
 }
 
 
@@ -89,6 +90,18 @@ def run_case(name: str, args) -> float:
         delayed = single(flocking.Model(n=big, density=2.0, noise=1.0, delay=10, seed=1), "float32", args)
         print(f"  delay 10: {delayed:.3e}, none: {plain:.3e}")
         return delayed / plain
+    if name == "extensions":
+        # walls on y, an obstacle, two species that anti-align, a vision cone, nematic
+        # alignment, chirality and a field: every branch of the extended kernels
+        plain = flocking.Model(n=big, density=2.0, noise=1.0, seed=1)
+        side = plain.box[0]
+        every = plain.replace(boundary="periodic,wall", obstacles=[{"centre": [side / 2, side / 2], "radius": side / 8}],
+                              species=[{"fraction": 0.5}, {"fraction": 0.5, "noise": 2.0}],
+                              coupling=[[1.0, -1.0], [-1.0, 1.0]], vision=2.1, alignment_rule="nematic",
+                              chirality=0.1, field=[1.0, 0.0], field_strength=0.2)
+        base, extended = single(plain, "float32", args), single(every, "float32", args)
+        print(f"  every extension: {extended:.3e}, none: {base:.3e}")
+        return extended / base
     raise ValueError(name)
 
 
@@ -173,7 +186,7 @@ def main() -> None:
             print(f"{name:12s} {what}: failed: {type(err).__name__}: {err}", flush=True)
             continue
         verdict = "ok" if value >= target else "MISSED"
-        unit = "x" if name == "delay" else " particle-steps/s"
+        unit = "x" if name in ("delay", "extensions") else " particle-steps/s"
         print(f"{name:12s} {value:10.3e}{unit}  target {target:.1e}  {verdict}  ({what})", flush=True)
 
 
