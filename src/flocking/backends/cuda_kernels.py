@@ -408,21 +408,13 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
                             else:
                                 dz = minimum_image(pos[2, j] - zi, l2, h2)
                             d2 += dz * dz
-                        if d2 < r2:
-                            if EXT:
-                                if seen(i, dx, dy, dz, d2, head, cosv):
-                                    w = weight(i, j, head, ids, bounds, cpl, si)
-                                    sx += w * head[0, j]
-                                    sy += w * head[1, j]
-                                    if DIM == 3:
-                                        sz += w * head[2, j]
-                                    count += 1
-                            else:
-                                sx += head[0, j]
-                                sy += head[1, j]
-                                if DIM == 3:
-                                    sz += head[2, j]
-                                count += 1
+                        if d2 < r2 and seen(i, dx, dy, dz, d2, head, cosv):
+                            w = weight(i, j, head, ids, bounds, cpl, si)
+                            sx += w * head[0, j]
+                            sy += w * head[1, j]
+                            if DIM == 3:
+                                sz += w * head[2, j]
+                            count += 1
         return sx, sy, sz, count
 
     @cuda.jit(device=True)
@@ -488,7 +480,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
                             if DIM == 3:
                                 dz = minimum_image(pos[2, j] - zi, l2, h2)
                                 d2 += dz * dz
-                            if EXT and not seen(i, dx, dy, dz, d2, head, cosv):
+                            if not seen(i, dx, dy, dz, d2, head, cosv):
                                 continue
                             if not better(d2, j, bd, bs, K - 1, ids):
                                 continue
@@ -591,7 +583,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
         inv0, inv1, inv2, l0, l1, l2 = geom[0], geom[1], geom[2], geom[3], geom[4], geom[5]
         cb = r * ncells
         pid = ids[i]
-        si = species_of(pid, bounds) if EXT else 0
+        si = species_of(pid, bounds)
         if K == 0:
             sx, sy, sz, count = metric_sums(i, cb, pos, head, ids, start, nc0, nc1, nc2,
                                             inv0, inv1, inv2, l0, l1, l2, geom[6], bounds, cpl, xr[3], si)
@@ -604,7 +596,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
             for q in range(K):
                 if q < count:
                     j = bs[q]
-                    w = weight(i, j, head, ids, bounds, cpl, si) if EXT else ONE
+                    w = weight(i, j, head, ids, bounds, cpl, si)
                     sx += w * head[0, j]
                     sy += w * head[1, j]
                     if DIM == 3:
@@ -867,7 +859,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
         if local < n:
             s = r * n + local
             o = np.int64(srt[s] & _LOW)
-            row = species_of(new_ids[o], bounds) * DIM if EXT else 0
+            row = species_of(new_ids[o], bounds) * DIM
             for a in range(DIM):
                 pos[a, s] = new_pos[a, o]
                 head[a, s] = new_head[a, o]
