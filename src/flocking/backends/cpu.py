@@ -801,7 +801,7 @@ class CPUBackend:
             from . import cpu_extensions
 
             self._kernel, units = cpu_extensions.kernel(mode)
-            self._extensions = cpu_extensions.parameters(model, self._nc)
+            self._extensions = cpu_extensions.parameters(model)
         self._partial = np.zeros((_work_units(self._nc, n, units), moment_width(model) if model.extended else 3))
         self._params = np.array([
             model.radius**2, model.k if model.neighbours == "topological" else 0, model.noise,

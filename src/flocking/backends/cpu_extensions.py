@@ -50,8 +50,9 @@ _COUPLING, _NEMATIC, _CONE, _COS = 0, 1, 2, 3
 PAIR_WEIGHTS = ("coupling", "nematic alignment", "vision")
 
 
-def parameters(model, nc: np.ndarray) -> tuple:
-    """The extension arrays of :func:`step` for ``model``, in its argument order."""
+def parameters(model) -> tuple:
+    """The extension arrays of :func:`step_lines` and :func:`step_search` for ``model``,
+    in their argument order (the cuda backend takes its arrays from here too)."""
     d = model.dim
     box = np.asarray(model.box, dtype=np.float64)
     walls = np.asarray(model.walls, dtype=np.int64)

@@ -42,7 +42,6 @@ raises :class:`flocking.ParameterError` with one line that says so.
 
 from __future__ import annotations
 
-import math
 import sys
 import warnings
 from collections.abc import Sequence
@@ -96,20 +95,26 @@ def _simulated() -> bool:
     return bool(config.ENABLE_CUDASIM)
 
 
-def _serialise_shared_arrays() -> None:
-    """Make numba's CUDA simulator hand every thread of a block the same shared array.
+def _steady_simulator() -> None:
+    """Ready numba's CUDA simulator (once a process; the simulator only) for the kernels.
 
-    The simulator runs a block's threads as Python threads and finds a call site's shared
-    array by a look-up then an insertion in a dict; a thread switched out between the two
-    lets another allocate a second array, so under load two threads of a block could see
-    different "shared" memory. Here the look-up and the insertion are one locked step
-    (once a process; the simulator only)."""
+    - The simulator runs the uint64 hash in NumPy scalars, which warn on the (intended)
+      wrap-around of the multiplications: those warnings are ignored, and the registry a
+      first warning adds to the kernels' module is put there beforehand (the simulator's
+      threads may be iterating over that module's globals).
+    - It runs a block's threads as Python threads and finds a call site's shared array by
+      a look-up then an insertion in a dict; a thread switched out between the two lets
+      another allocate a second array, so under load two threads of a block could see
+      different "shared" memory. Here the look-up and the insertion are one locked step.
+    """
     import threading
 
     from numba.core import types
     from numba.cuda.simulator import kernelapi
     from numba.np import numpy_support
 
+    warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning, "flocking.backends.cuda_kernels")
+    vars(sys.modules["flocking.backends.cuda_kernels"]).setdefault("__warningregistry__", {})
     shared = kernelapi.FakeCUDAShared
     if getattr(shared.array, "serialised", False):
         return
@@ -183,14 +188,7 @@ class Engine:
         self.replicas, self.n, self.dim = r, n, d
         simulated = _simulated()
         if simulated:
-            # the simulator runs the uint64 hash in NumPy scalars, which warn on the
-            # (intended) wrap-around of the multiplications
-            warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning,
-                                    "flocking.backends.cuda_kernels")
-            # a first warning adds its registry to the module's globals, which the
-            # simulator's threads may be iterating over: have it there beforehand
-            vars(sys.modules["flocking.backends.cuda_kernels"]).setdefault("__warningregistry__", {})
-            _serialise_shared_arrays()
+            _steady_simulator()
         block, bits, items = _SIM_SHAPE if simulated else _GPU_SHAPE
         k = model.k if model.neighbours == "topological" else 0
         self._k = kernels = build(precision, d, k, block, bits, items, extensions(model))
@@ -219,8 +217,8 @@ class Engine:
         self._speed = [real(s.speeds[0] if s.n else x.speed) for x, s in zip(models, states)]
         self._rp = cuda.to_device(np.array([[real(x.noise), real(x.alignment), v] for x, v in zip(models, self._speed)],
                                            dtype=real))
-        for name, value in extension_arrays(models, real).items():
-            setattr(self, name, cuda.to_device(value))
+        self._sp, self._bounds, self._cpl, self._xr, self._obs = (
+            cuda.to_device(a) for a in extension_arrays(models, real))
         self._rtau = cuda.to_device(np.array([x.delay for x in models], dtype=np.int64))
         self._rseed = cuda.to_device(np.array([x.seed for x in models], dtype=np.uint64))
         self._per_particle = per_particle
@@ -240,7 +238,7 @@ class Engine:
         self._start = cuda.to_device(start)
         self._partial = dev((self._width, r * self._qb), np.float64)
         self._phi = cuda.to_device(np.zeros((r, self._rows, self._width)))
-        self._species = len(model.species_counts) if model.extended else 1
+        self._species = len(model.species_counts)
         self.moments = np.zeros((r, 0, self._width))
         self._clock = cuda.to_device(np.array([states[0].step, 1], dtype=np.int64))
         self._hist = cuda.to_device(np.zeros(kernels.max_passes * kernels.digits_per_pass, dtype=np.int32))
@@ -444,7 +442,7 @@ def radix_sort(records: np.ndarray, key_bits: int = 31, shape: tuple[int, int, i
     from .cuda_kernels import build, passes
 
     if _simulated():
-        _serialise_shared_arrays()
+        _steady_simulator()
     block, bits, items = shape or (_SIM_SHAPE if _simulated() else _GPU_SHAPE)
     k = build("float64", 2, 0, block, bits, items)
     records = np.ascontiguousarray(records, dtype=np.uint64)
@@ -483,29 +481,22 @@ def extensions(model: Model):
                       coupling=model.coupling is not None, species=len(model.species_counts))
 
 
-def extension_arrays(models: Sequence[Model], real) -> dict[str, np.ndarray]:
+def extension_arrays(models: Sequence[Model], real) -> tuple[np.ndarray, ...]:
     """The step kernel's extension arguments for replicas ``models`` (which share
-    :data:`SHARED`), by the engine's attribute names: ``_sp`` ``(R, S, 4)`` per replica and
-    species (noise, alignment, ``chirality * dt``, field strength), ``_bounds`` (the first
-    id of each species, then ``N``), ``_cpl`` the coupling, ``_xr`` (the field's direction,
-    the cosine of the vision half-angle) and ``_obs`` (centre, radius; one unused row when
-    there are none). The plain model's kernels take them and read none."""
-    from .cuda_kernels import SPECIES
+    :data:`SHARED`), from the CPU backend's (:func:`flocking.backends.cpu_extensions.parameters`):
+    ``sp`` ``(R, S, 4)`` per replica and species (noise, alignment, ``chirality * dt``, field
+    strength), ``bounds`` (the first id of each species, then ``N``), the coupling, ``xr``
+    (the field's direction, the cosine of the vision half-angle) and the obstacles (centre,
+    radius; one unused row when there are none). The plain model's kernels take them and
+    read none."""
+    from .cpu_extensions import _COS, parameters
 
-    model = models[0]
-    d = model.dim
-    sp = np.array([[[x.species_values(name)[s] for name in ("noise", "alignment", "chirality", "field_strength")]
-                    for s in range(len(x.species_counts))] for x in models], dtype=np.float64)
-    sp[..., SPECIES.index("turn")] *= model.dt
-    count = len(model.species_counts)
-    cpl = np.ones((count, count)) if model.coupling is None else np.array(model.coupling, dtype=np.float64)
-    g = np.zeros(3)
-    if model.field is not None:
-        g[:d] = model.field_direction
-    obs = np.array([[*o.centre, o.radius] for o in model.obstacles], dtype=np.float64).reshape(-1, d + 1)
-    return {"_sp": sp.astype(real), "_bounds": np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64),
-            "_cpl": cpl.astype(real), "_xr": np.array([*g, math.cos(model.vision)]).astype(real),
-            "_obs": (obs if len(obs) else np.zeros((1, d + 1))).astype(real)}
+    each = [parameters(x) for x in models]
+    _, _, obs, bounds, _, cpl, g, q = each[0]
+    if not len(obs):
+        obs = np.zeros((1, models[0].dim + 1))
+    sp = np.stack([species for _, _, _, _, species, _, _, _ in each])
+    return sp.astype(real), bounds, cpl.astype(real), np.array([*g, q[_COS]]).astype(real), obs.astype(real)
 
 
 def check_supported(models: Sequence[Model]) -> None:
@@ -514,7 +505,7 @@ def check_supported(models: Sequence[Model]) -> None:
     from ..observables import moment_width
 
     for model in models:
-        width = moment_width(model) if model.extended else model.dim
+        width = moment_width(model)
         if width > MAX_WIDTH:
             nematic = " and the nematic order" if model.alignment_rule == "nematic" else ""
             raise ParameterError(
