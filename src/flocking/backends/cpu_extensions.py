@@ -383,21 +383,22 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     nseg = (nx + _SEGMENT - 1) // _SEGMENT
     nunits = _work_units(nc, n, 0)
     nt = max(1, min(threads, nunits))
-    # per slot its species, and its coupling from each species: a unit's buffer holds the
-    # latter as rows, so a weighted sum reads one row (a load, not a look-up per pair)
+    # per slot its species, and (for weighted sums) its coupling from each species: a
+    # unit's buffer holds the latter as rows, so a weighted sum reads one row (a load, not a
+    # look-up per pair); unweighted sums read none, so none are made or copied
     tag = np.empty(n)
-    cols = np.empty((coupling.shape[0], n))
+    cols = np.empty((coupling.shape[0] if weighted else 0, n))
     for i in numba.prange(n):
         s = _species_of(ids[i], bounds)
         tag[i] = s
-        for a in range(coupling.shape[0]):
+        for a in range(cols.shape[0]):
             cols[a, i] = coupling[a, s]
     counter = np.zeros(1, dtype=np.int64)
     width = partial.shape[1]
     for t in numba.prange(nt):
         x, y, z = pos[0], pos[1], pos[d - 1]
         hx, hy, hz = head[0], head[1], head[d - 1]
-        buf = np.empty((2 * d + coupling.shape[0], 4096))
+        buf = np.empty((2 * d + cols.shape[0], 4096))
         rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
         ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
         out = np.empty((4, 16))
