@@ -245,7 +245,9 @@ class Engine:
         self._tile_counter = cuda.to_device(np.zeros(kernels.max_passes, dtype=np.int32))
         self._status = cuda.to_device(np.zeros(-(-m // kernels.tile) * kernels.digits_per_pass, dtype=np.int64))
         self._taus = [x.delay for x in models]
-        self._ring = cuda.to_device(np.zeros((m, max(self._taus), 4) if max(self._taus) else (1, 1, 4), dtype=real))
+        # (slot, particle, sums and count), the cpu backend's layout: a step reads and
+        # writes the slab of slot t % tau, d + 1 values a particle
+        self._ring = cuda.to_device(np.zeros((max(self._taus), m, d + 1) if max(self._taus) else (1, 1, 1), dtype=real))
         self._step_count = states[0].step
         self._graphs = graphs and not simulated
         self._graph = None
@@ -290,9 +292,7 @@ class Engine:
             if saved.shape != (tau, n, d + 1):
                 raise ParameterError(f"resume: the saved delay ring has shape {saved.shape}, "
                                      f"not (delay, n, dim + 1) = {(tau, n, d + 1)}")
-            block = ring[r * n:(r + 1) * n, :tau]
-            block[..., :d] = saved[..., :d].transpose(1, 0, 2)
-            block[..., 3] = saved[..., d].T
+            ring[:tau, r * n:(r + 1) * n] = saved
         self._ring.copy_to_device(ring)
 
     def _launch_step(self, prime: bool = False, stream=0) -> None:
@@ -402,7 +402,7 @@ class Engine:
     def memory(self) -> list[dict[str, np.ndarray]]:
         """Per replica, the delay ring in the cpu backend's layout ``(delay, N, d + 1)``,
         indexed by id (``{}`` without a delay)."""
-        n, d = self.n, self.dim
+        n = self.n
         if not max(self._taus):
             return [{} for _ in self.models]
         ring = self._ring.copy_to_host().astype(np.float64)
@@ -411,11 +411,7 @@ class Engine:
             if not tau:
                 out.append({})
                 continue
-            block = ring[r * n:(r + 1) * n, :tau]  # (N, tau, 4)
-            saved = np.empty((tau, n, d + 1))
-            saved[..., :d] = block[..., :d].transpose(1, 0, 2)
-            saved[..., d] = block[..., 3].T
-            out.append({"ring": saved})
+            out.append({"ring": ring[:tau, r * n:(r + 1) * n].copy()})
         return out
 
 

@@ -566,8 +566,8 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
     def step(pos, head, spd, ids, start, geom, ints, rp, rtau, rseed, clock, ring, prime,
              new_pos, new_head, new_ids, new_spd, rec, sp, bounds, cpl, xr, obs):
         """One step of a slot into ``new_*[:, slot]`` and its sort record into
-        ``rec[global id]``. ``ring[global id, t % tau]`` (tau > 0) holds the neighbour
-        sums of tau steps ago and receives today's. With ``prime``, only fill every ring
+        ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the neighbour
+        sums and count (``d + 1`` values, the cpu backend's layout) of tau steps ago and receives today's. With ``prime``, only fill every ring
         slot with today's sums (the initial state stands in for the past). With
         extensions: ``sp[r, species]`` (:data:`SPECIES`), the species' first ids
         ``bounds``, the coupling ``cpl``, ``xr`` (:data:`EXT_REAL`) and the obstacles
@@ -607,14 +607,19 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
         tau = rtau[r]
         if prime:
             for s in range(tau):
-                ring[gid, s, 0], ring[gid, s, 1], ring[gid, s, 3] = sx, sy, total
-                ring[gid, s, 2] = sz
+                ring[s, gid, 0], ring[s, gid, 1], ring[s, gid, DIM] = sx, sy, total
+                if DIM == 3:
+                    ring[s, gid, 2] = sz
             return
         if tau > 0:
             s = t % tau
-            osx, osy, osz, ototal = ring[gid, s, 0], ring[gid, s, 1], ring[gid, s, 2], ring[gid, s, 3]
-            ring[gid, s, 0], ring[gid, s, 1], ring[gid, s, 2], ring[gid, s, 3] = sx, sy, sz, total
-            sx, sy, sz, total = osx, osy, osz, ototal
+            osx, osy, ototal = ring[s, gid, 0], ring[s, gid, 1], ring[s, gid, DIM]
+            ring[s, gid, 0], ring[s, gid, 1], ring[s, gid, DIM] = sx, sy, total
+            if DIM == 3:
+                osz = ring[s, gid, 2]
+                ring[s, gid, 2] = sz
+                sz = osz
+            sx, sy, total = osx, osy, ototal
         if EXT:
             eta, epsilon, turn, h = sp[r, si, 0], sp[r, si, 1], sp[r, si, 2], sp[r, si, 3]
         else:
