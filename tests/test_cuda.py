@@ -20,6 +20,7 @@ import pytest
 import flocking
 from flocking.backends.reference import ReferenceBackend
 from gpu_marks import gpu, no_gpu
+from test_extensions import EXTENSIONS
 
 TESTS = os.path.dirname(os.path.abspath(__file__))
 SRC = os.path.join(os.path.dirname(TESTS), "src")
@@ -56,10 +57,8 @@ MORE_CASES = {
 EXTENDED = ["all-with-delay:2:float64", "all-with-delay:3:float64", "three-species:2:float64", "informed:2:float64",
             "topological:2:float64", "box-below-3R:3:float64", "all-with-delay:2:float32"]
 #: ... and every other combination with ``-m slow``
-MORE_EXTENDED = [f"{name}:{dim}:float64" for dim in (2, 3) for name in (
-    "walls", "wall-one-axis", "obstacles", "species-coupling", "three-species", "vision", "nematic", "chirality",
-    "field", "informed", "all-with-delay", "topological", "topological-delay-nematic", "box-below-3R")
-    if f"{name}:{dim}:float64" not in EXTENDED and not (dim == 3 and name == "chirality")] + [
+MORE_EXTENDED = [f"{name}:{dim}:float64" for dim in (2, 3) for name in EXTENSIONS
+                 if f"{name}:{dim}:float64" not in EXTENDED and not (dim == 3 and name == "chirality")] + [
     "topological:3:float32", "obstacles:3:float32"]
 
 #: datasets of the sort test (see ``sorts`` in the harness)
@@ -192,17 +191,14 @@ def extended(names):
     # each extension case of tests/test_extensions.py (60 particles), one step at a time
     # from the oracle's state, against the reference: every difference, moments included
     sys.path.insert(0, TESTS)
-    from test_extensions import EXTENSIONS, make
+    from test_extensions import sized
     from flocking.state import inside_obstacles
 
     out = {}
     for key in names:
         name, dim, precision = key.split(":")
-        n = 60 if dim == "2" else 120  # about 3 neighbours each in the 6^d box
-        options = dict(EXTENSIONS[name], n=n)
-        if "species" in options and "n" in options["species"][0]:
-            options["species"] = [{**options["species"][0], "n": n // 3}, {**options["species"][1], "n": n - n // 3}]
-        model = make(int(dim), options)
+        # about 3 neighbours each in the 6^d box
+        model = sized(name, int(dim), 60 if dim == "2" else 120)
         state = flocking.State.random(model)
         worst = dict(dp=0.0, dh=0.0, dphi=0.0, dmoments=0.0)
         inside, outside = True, False
@@ -482,8 +478,6 @@ def test_device_step_matches_reference(dim, neighbours):
 
 
 def device_extension_cases():
-    from test_extensions import EXTENSIONS
-
     cases = [(name, dim, "float64") for dim in (2, 3) for name in EXTENSIONS if (name, dim) != ("chirality", 3)]
     return cases + [("all-with-delay", 2, "float32"), ("topological", 3, "float32")]
 
@@ -497,14 +491,10 @@ def test_device_extensions_match_reference(name, dim, precision):
     box-below-3R case all of them in a box 2.6 wide), moment sums included."""
     from flocking.backends.cuda import CUDABackend
     from flocking.state import inside_obstacles
-    from test_extensions import EXTENSIONS, assert_same_state, make
+    from test_extensions import assert_same_state, sized
 
-    options = dict(EXTENSIONS[name], n=1500)
-    if name != "box-below-3R":
-        options["box"] = 20.0 if dim == 2 else 8.0
-    if "species" in options and "n" in options["species"][0]:
-        options["species"] = [{**options["species"][0], "n": 500}, {**options["species"][1], "n": 1000}]
-    model = make(dim, options)
+    box = {} if name == "box-below-3R" else {"box": 20.0 if dim == 2 else 8.0}
+    model = sized(name, dim, 1500, **box)
     tol, tol_moments = (1e-12, 1e-9) if precision == "float64" else (2e-5, 5e-3)
     state = flocking.State.random(model)
     for _ in range(3):

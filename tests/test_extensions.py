@@ -66,6 +66,16 @@ def make(dim, options):
     return Model(**kw)
 
 
+def sized(name, dim, n, **overrides):
+    """Case ``name`` of :data:`EXTENSIONS` in ``dim`` dimensions with ``n`` particles (species
+    given by counts keep their proportions: a third, then the rest) and ``overrides``."""
+    options = {**EXTENSIONS[name], "n": n, **overrides}
+    if "species" in options and "n" in options["species"][0]:
+        first, second = options["species"]
+        options["species"] = [{**first, "n": n // 3}, {**second, "n": n - n // 3}]
+    return make(dim, options)
+
+
 def assert_same_state(a, b, model, tol=1e-12):
     d = a.positions - b.positions
     box = np.asarray(model.box)
