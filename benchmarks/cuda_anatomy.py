@@ -19,9 +19,13 @@ import argparse
 import time
 
 import numpy as np
+from bench_cuda import timed
 
 import flocking
 from flocking.backends.cuda import CUDABackend
+
+#: steps per timed chunk and chunks (the median is taken) of every rate below
+STEPS, REPEATS = 20, 3
 
 
 def sync_time(cuda, fn) -> float:
@@ -30,17 +34,6 @@ def sync_time(cuda, fn) -> float:
     fn()
     cuda.synchronize()
     return time.perf_counter() - t0
-
-
-def rate(advance, particles: int, steps: int = 20, repeats: int = 3) -> float:
-    """Median particle-steps per second of ``repeats`` calls ``advance(steps)``."""
-    advance(2)
-    out = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        advance(steps)
-        out.append(steps * particles / (time.perf_counter() - t0))
-    return float(np.median(out))
 
 
 def anatomy(label: str, backend, steps: int = 10) -> None:
@@ -75,7 +68,7 @@ def anatomy(label: str, backend, steps: int = 10) -> None:
     med = {key: float(np.median(v)) for key, v in acc.items()}
     total = sum(med.values())
     how = "as a graph" if e._graphs else "host launches"
-    whole = rate(backend.advance, m, 20)
+    whole = timed(backend.advance, STEPS, REPEATS, m)
     print(f"{label}: M = {m}, {e.replicas * e._cells} cells, {e._passes} passes; kernels {total * 1e3:.3f} ms "
           f"({m / total:.3e}/s); whole steps ({how}) {m / whole * 1e3:.3f} ms ({whole:.3e}/s)", flush=True)
     print("   " + "  ".join(f"{key} {v * 1e3:.3f} ms ({100 * v / total:.0f}%)" for key, v in med.items()), flush=True)
@@ -93,11 +86,13 @@ def extension_rates(plain: flocking.Model) -> None:
     if dim == 2:
         one["chirality"] = dict(chirality=0.1)
     one["every"] = {key: value for kw in list(one.values()) for key, value in kw.items()}
-    base = rate(CUDABackend(plain, flocking.State.random(plain), precision="float32").advance, plain.n)
+    base = timed(CUDABackend(plain, flocking.State.random(plain), precision="float32").advance, STEPS, REPEATS,
+                 plain.n)
     print(f"{dim}D float32 plain      {base:.3e}/s", flush=True)
     for name, kw in one.items():
         model = plain.replace(**kw)
-        r = rate(CUDABackend(model, flocking.State.random(model), precision="float32").advance, model.n)
+        r = timed(CUDABackend(model, flocking.State.random(model), precision="float32").advance, STEPS, REPEATS,
+                  model.n)
         print(f"{dim}D float32 {name:10s} {r:.3e}/s  {r / base:.2f}x", flush=True)
 
 
