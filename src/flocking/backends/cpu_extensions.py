@@ -11,7 +11,8 @@ the same arrays kept in cell order and the same cells (:func:`kernel` picks):
   walls the wrapped copies are shifted by ``2L`` instead of ``L``, out of reach. Without
   pair weights the plain SIMD reductions sum the neighbours; with them (coupling, nematic
   sign, vision cone), :func:`_wreduce_2d` and :func:`_wreduce_3d` weigh each pair in the
-  same four lanes, without branches. Both count the particle itself, then take it out.
+  same four lanes, without branches (in 3D, one weight alone in lanes compiled for it:
+  :func:`_weighted_3d`). Both count the particle itself, then take it out.
 - :func:`step_search`, topological neighbours and small grids, over blocks of slots: each
   particle sums the others in the ``3^d`` cells around its own (metric, every pair by
   minimum image) or in rings of cells (the ``k`` nearest).
@@ -275,8 +276,10 @@ def _wterm_2d(buf, j, last, xi, yi, ux, uy, fn, r2, cs, jr):
 
 
 @numba.njit(cache=True)
-def _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jr):
-    """As :func:`_wterm_2d`, in 3D."""
+def _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, first, si):
+    """As :func:`_wterm_2d`, in 3D, the coupling in row ``first + si``; a weight given as
+    ``None`` (``cs``, ``fn`` or ``first``) is compiled out, so that numba makes one
+    version for each pair weight alone (:func:`_weighted_3d`)."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi
@@ -284,10 +287,16 @@ def _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jr):
     vy = buf[4, j]
     vz = buf[5, j]
     d2 = dx * dx + dy * dy + dz * dz
-    a = ux * dx + uy * dy + uz * dz
-    inside = (d2 < r2) & (j <= last) & (a * abs(a) >= cs * d2)
-    w = buf[jr, j] * (1.0 if inside else 0.0)
-    w *= -1.0 if fn * (ux * vx + uy * vy + uz * vz) < 0.0 else 1.0
+    if cs is None:
+        inside = (d2 < r2) & (j <= last)
+    else:
+        a = ux * dx + uy * dy + uz * dz
+        inside = (d2 < r2) & (j <= last) & (a * abs(a) >= cs * d2)
+    w = 1.0 if inside else 0.0
+    if first is not None:
+        w *= buf[np.uint64(first + int(si)), j]
+    if fn is not None:
+        w *= -1.0 if fn * (ux * vx + uy * vy + uz * vz) < 0.0 else 1.0
     return vx * w, vy * w, vz * w, 1.0 if inside else 0.0
 
 
@@ -324,8 +333,9 @@ def _wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cs, nematic, out, o)
 
 
 @numba.njit(cache=True)
-def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, out, o):
-    """As :func:`_wreduce_2d`, in 3D."""
+def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, fn, first, out, o):
+    """As :func:`_wreduce_2d`, in 3D, weighted by :func:`_wterm_3d` with the cone ``cs``,
+    the nematic factor ``fn`` and the coupling rows from ``first`` on."""
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
@@ -333,8 +343,7 @@ def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, 
         ux = hx[i]
         uy = hy[i]
         uz = hz[i]
-        fn = 1.0 if nematic else 0.0
-        jr = np.uint64(6 + int(tag[i]))
+        si = tag[i]
         a0 = a1 = a2 = a3 = 0.0
         b0 = b1 = b2 = b3 = 0.0
         c0 = c1 = c2 = c3 = 0.0
@@ -344,12 +353,12 @@ def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, 
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = _ALL if j < m4 else hi - _U1
-                p0, q0, r0, w0 = _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jr)
-                p1, q1, r1, w1 = _wterm_3d(buf, j + _U1, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, jr)
+                p0, q0, r0, w0 = _wterm_3d(buf, j, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, first, si)
+                p1, q1, r1, w1 = _wterm_3d(buf, j + _U1, last, xi, yi, zi, ux, uy, uz, fn, r2, cs, first, si)
                 p2, q2, r2_, w2 = _wterm_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, fn, r2, cs,
-                                            jr)
+                                            first, si)
                 p3, q3, r3, w3 = _wterm_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, fn, r2, cs,
-                                           jr)
+                                           first, si)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
@@ -358,6 +367,27 @@ def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, 
         out[1, o + i - i0] = (b0 + b1) + (b2 + b3)
         out[2, o + i - i0] = (c0 + c1) + (c2 + c3)
         out[3, o + i - i0] = (n0 + n1) + (n2 + n3)
+
+
+@numba.njit(cache=True)
+def _weighted_3d(one, buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, out, o):
+    """The weighted sums of slots ``i0:i1`` in 3D. With one pair weight alone (``one``: its
+    index in ``q``, the coupling, the nematic sign or the cone; -1 for several), a version
+    of :func:`_wreduce_3d` compiled for it, so the others cost nothing per pair: 0.78, 0.80
+    and 0.72 of the plain model's speed against 0.56, 0.59 and 0.51 computing all three
+    (docs/performance.md). With several, every weight is computed (a cone of ``cs = -4``
+    admits every candidate, ``fn = 0`` keeps every sign). The cone alone keeps the sign,
+    with ``fn = 0``: compiled without it, LLVM left the loop scalar (a tenth of the vector
+    registers in its assembly, 0.38 of the plain speed). In 2D the same versions measured
+    no faster than :func:`_wreduce_2d`, which computes all three."""
+    if one == _COUPLING:
+        _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, None, None, 6, out, o)
+    elif one == _NEMATIC:
+        _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, None, 1.0, None, out, o)
+    elif one == _CONE:
+        _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, 0.0, None, out, o)
+    else:
+        _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, 1.0 if nematic else 0.0, 6, out, o)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -374,8 +404,10 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     delay, dt, backward = int(p[5]), p[6], p[7] != 0.0
     nematic = q[_NEMATIC] != 0.0
     # pair weights (coupling, nematic sign, cone) need the weighted sums; otherwise the
-    # plain model's serve
-    weighted = q[_COUPLING] != 0.0 or nematic or q[_CONE] != 0.0
+    # plain model's serve. In 3D one weight alone has sums compiled for it (_weighted_3d).
+    on = (q[_COUPLING] != 0.0, nematic, q[_CONE] != 0.0)
+    weighted = on[0] or on[1] or on[2]
+    one = -1 if on[0] + on[1] + on[2] != 1 else (_COUPLING if on[0] else _NEMATIC if on[1] else _CONE)
     cs = q[_COS] * abs(q[_COS]) if q[_CONE] != 0.0 else -4.0  # -4: every candidate is in
     inv = nc / box
     shifts = box * (1.0 + walls)  # 2L along a wall axis: a wrapped copy is never within R
@@ -420,8 +452,8 @@ def step_lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
                     _wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, cs, nematic, out,
                                 start[c] - s0)
                 else:
-                    _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, cs, nematic,
-                                out, start[c] - s0)
+                    _weighted_3d(one, buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, cs, nematic,
+                                 out, start[c] - s0)
             acc[:] = 0.0
             for i in range(s0, s1):
                 m = i - s0
