@@ -188,6 +188,12 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
         return dx
 
     @cuda.jit(device=True)
+    def halves(l0, l1, l2):
+        """Half the box along each axis, the reach of :func:`minimum_image`: infinite along
+        an axis with walls, where there is no minimum image."""
+        return INF if WALL0 else l0 / TWO, INF if WALL1 else l1 / TWO, INF if WALL2 else l2 / TWO
+
+    @cuda.jit(device=True)
     def wrap(x, length):
         if not abs(x) < INF:  # NaN or infinite (a broken state): left as it is
             return x
@@ -363,14 +369,10 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
         """Weighted heading sum and number of the others within R of slot ``i`` (``cb``:
         the replica's first cell). Along an axis with walls there is no minimum image and
         wrapped cells are shifted by ``2L``, out of reach."""
-        h0, h1, h2 = l0 / TWO, l1 / TWO, l2 / TWO
-        s0, s1, s2 = l0, l1, l2
-        if WALL0:
-            h0, s0 = INF, TWO * l0
-        if WALL1:
-            h1, s1 = INF, TWO * l1
-        if WALL2:
-            h2, s2 = INF, TWO * l2
+        h0, h1, h2 = halves(l0, l1, l2)
+        s0 = TWO * l0 if WALL0 else l0
+        s1 = TWO * l1 if WALL1 else l1
+        s2 = TWO * l2 if WALL2 else l2
         xi, yi = pos[0, i], pos[1, i]
         zi = pos[2, i] if DIM == 3 else ZERO
         cx, cy = cell_of(xi, inv0, nc0), cell_of(yi, inv1, nc1)
@@ -437,13 +439,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
         the K best live in registers. A NaN distance is never a candidate. Along an axis
         with walls there is no minimum image (the cells across it are far away); with a
         vision cone, only the others inside it are candidates."""
-        h0, h1, h2 = l0 / TWO, l1 / TWO, l2 / TWO
-        if WALL0:
-            h0 = INF
-        if WALL1:
-            h1 = INF
-        if WALL2:
-            h2 = INF
+        h0, h1, h2 = halves(l0, l1, l2)
         xi, yi = pos[0, i], pos[1, i]
         zi = pos[2, i] if DIM == 3 else ZERO
         c0, c1 = cell_of(xi, inv0, nc0), cell_of(yi, inv1, nc1)
@@ -518,9 +514,7 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
         """Walls, then each obstacle in order: a particle inside one is moved to its
         mirror point ``c + (2a - d) n`` and its heading reflected if it points inward
         (as :func:`flocking.backends.cpu_extensions._bounce`)."""
-        h0 = INF if WALL0 else l0 / TWO
-        h1 = INF if WALL1 else l1 / TWO
-        h2 = INF if WALL2 else l2 / TWO
+        h0, h1, h2 = halves(l0, l1, l2)
         x, wx = fold(x, wx, l0, WALL0)
         y, wy = fold(y, wy, l1, WALL1)
         if DIM == 3:
