@@ -373,13 +373,12 @@ def _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, fn, first
 def _weighted_3d(one, buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cs, nematic, out, o):
     """The weighted sums of slots ``i0:i1`` in 3D. With one pair weight alone (``one``: its
     index in ``q``, the coupling, the nematic sign or the cone; -1 for several), a version
-    of :func:`_wreduce_3d` compiled for it, so the others cost nothing per pair: 0.78, 0.80
-    and 0.72 of the plain model's speed against 0.56, 0.59 and 0.51 computing all three
-    (docs/performance.md). With several, every weight is computed (a cone of ``cs = -4``
-    admits every candidate, ``fn = 0`` keeps every sign). The cone alone keeps the sign,
-    with ``fn = 0``: compiled without it, LLVM left the loop scalar (a tenth of the vector
-    registers in its assembly, 0.38 of the plain speed). In 2D the same versions measured
-    no faster than :func:`_wreduce_2d`, which computes all three."""
+    of :func:`_wreduce_3d` compiled for it, so the others cost nothing per pair. With
+    several, every weight is computed (a cone of ``cs = -4`` admits every candidate,
+    ``fn = 0`` keeps every sign). The cone alone keeps the sign, with ``fn = 0``: compiled
+    without it, LLVM left the loop scalar. In 2D the same versions measured no faster than
+    :func:`_wreduce_2d`, which computes all three. The measurements are in
+    docs/performance.md."""
     if one == _COUPLING:
         _wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, None, None, 6, out, o)
     elif one == _NEMATIC:

@@ -561,8 +561,9 @@ def build(precision: str, dim: int, k: int, block: int, bits: int, items: int,
              new_pos, new_head, new_ids, new_spd, rec, sp, bounds, cpl, xr, obs):
         """One step of a slot into ``new_*[:, slot]`` and its sort record into
         ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the neighbour
-        sums and count (``d + 1`` values, the cpu backend's layout) of tau steps ago and receives today's. With ``prime``, only fill every ring
-        slot with today's sums (the initial state stands in for the past). With
+        sums and count (``d + 1`` values, the cpu backend's layout) of tau steps ago and
+        receives today's. With ``prime``, only fill every ring slot with today's sums (the
+        initial state stands in for the past). With
         extensions: ``sp[r, species]`` (:data:`SPECIES`), the species' first ids
         ``bounds``, the coupling ``cpl``, ``xr`` (:data:`EXT_REAL`) and the obstacles
         ``obs`` (centre, radius; ``ints[10]`` of them); unused otherwise."""
