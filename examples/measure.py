@@ -12,14 +12,18 @@ It prints what applies to the run:
 * with several species, each species' polar order and heading, and the fraction of
   neighbour pairs (closer than R) of the same species, beside what a random mixture gives;
 * the nematic order S = |<exp(2 i theta)>|, the direction of the common axis (degrees from
-  +x, in (-90, 90]), and the fraction of neighbour pairs moving the
-  same way along the common axis (sorted into lanes: near 1; mixed at random: the value
-  printed beside it).
+  +x, in (-90, 90]), the fraction of neighbour pairs moving the same way along the common
+  axis (sorted by sense: near 1; mixed at random: the value printed beside it), and the
+  fraction of the particles in the densest quarter of the box across the axis (32 strips
+  parallel to the box side or diagonal nearest the axis, the densest 8 in a row,
+  periodically): 0.25 for a uniform density, up to 1 for a dense band along the axis (a
+  nematic lane).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 
 import numpy as np
@@ -29,19 +33,37 @@ import flocking
 
 def pairs(frame, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Indices ``(i, j)``, ``i < j``, of the particles closer than ``radius`` (minimum image
-    along periodic axes); all pairs at once, so for a few thousand particles."""
-    x = frame.points[:, : frame.dim].astype(np.float64)
-    box = frame.box_lengths
-    periodic = ~np.asarray(frame.walls)
-    i, j = np.triu_indices(len(x), 1)
-    close = []
-    for start in range(0, len(i), 1 << 22):  # in blocks, to bound memory
-        a, b = i[start:start + (1 << 22)], j[start:start + (1 << 22)]
-        d = x[a] - x[b]
-        d = np.where(periodic, d - box * np.round(d / box), d)
-        keep = np.einsum("ij,ij->i", d, d) < radius * radius
-        close.append((a[keep], b[keep]))
-    return np.concatenate([c[0] for c in close]), np.concatenate([c[1] for c in close])
+    along periodic axes), from a grid of cells at least ``radius`` wide."""
+    dim = frame.dim
+    box = frame.box_lengths[:dim].astype(np.float64)
+    periodic = ~np.asarray(frame.walls)[:dim]
+    x = frame.points[:, :dim].astype(np.float64) + box / 2  # in [0, L] per axis
+    x = np.where(periodic, np.mod(x, box), x)
+    nc = np.maximum((box // radius).astype(np.int64), 1)
+    cell = np.minimum((x / box * nc).astype(np.int64), nc - 1)
+    key = np.ravel_multi_index(cell.T, nc)
+    order = np.argsort(key, kind="stable")
+    first = np.searchsorted(key[order], np.arange(np.prod(nc) + 1))
+    found = []
+    # the shifts to the neighbouring cells, each distinct cell once (a periodic axis of one
+    # or two cells would otherwise repeat them)
+    shifts = [sorted({k % n for k in (-1, 0, 1)}) if p else [-1, 0, 1] for n, p in zip(nc, periodic)]
+    for shift in itertools.product(*shifts):
+        other = cell + np.array(shift)
+        other = np.where(periodic, np.mod(other, nc), other)
+        i = np.flatnonzero(np.all((other >= 0) & (other < nc), axis=1))
+        b = np.ravel_multi_index(other[i].T, nc)
+        count = first[b + 1] - first[b]
+        # every particle of cell b for each i: their places in ``order``
+        start = np.repeat(first[b] - np.cumsum(count) + count, count)
+        j = order[start + np.arange(count.sum())]
+        i = np.repeat(i, count)
+        found.append((i[i < j], j[i < j]))
+    i, j = (np.concatenate(a) for a in zip(*found))
+    d = x[i] - x[j]
+    d = np.where(periodic, d - box * np.round(d / box), d)
+    keep = np.einsum("ij,ij->i", d, d) < radius * radius
+    return i[keep], j[keep]
 
 
 def same_fraction(labels: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[float, float]:
@@ -49,6 +71,20 @@ def same_fraction(labels: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[flo
     counts = np.bincount(labels).astype(np.float64)
     n = counts.sum()
     return float(np.mean(labels[i] == labels[j])), float(np.sum(counts * (counts - 1)) / (n * (n - 1)))
+
+
+def band(frame, axis: float, strips: int = 32) -> float:
+    """The fraction of the particles in the densest ``strips // 4`` adjacent strips of
+    ``strips`` parallel to the periodic line nearest the angle ``axis`` (radians): a box
+    side or a diagonal, the directions along which a band closes on itself."""
+    lx, ly = frame.box_lengths[:2]
+    x, y = frame.points[:, 0] / lx, frame.points[:, 1] / ly
+    lines = {0.0: y, np.pi / 2: x, np.arctan2(ly, lx): y - x, -np.arctan2(ly, lx): y + x}
+    nearest = min(lines, key=lambda a: abs(np.sin(axis - a)))  # a coordinate across each line
+    where = np.mod(lines[nearest], 1.0)  # positions centred on the box or not
+    counts = np.bincount(np.minimum((where * strips).astype(np.int64), strips - 1), minlength=strips)
+    window = np.convolve(np.concatenate([counts, counts[: strips // 4 - 1]]), np.ones(strips // 4), "valid")
+    return float(window.max() / len(frame.points))
 
 
 def angle(vector: np.ndarray) -> float:
@@ -85,6 +121,7 @@ def measure(path: str) -> dict[str, float]:
             row["axis"] = np.array([q.real, q.imag]) / abs(q)  # the axis at twice its angle
             sense = (np.cos(theta - np.angle(q) / 2) > 0).astype(np.int64)
             row["same_sense"], row["same_sense_random"] = same_fraction(sense, i, j)
+            row["band"] = band(frame, np.angle(q) / 2)
         rows.append(row)
     # a heading is the direction of the mean of the frames' unit mean headings
     means = {key: np.mean([r[key] for r in rows], axis=0) for key in rows[0]}

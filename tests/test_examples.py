@@ -1,0 +1,103 @@
+"""The examples: every config loads as a valid run, and examples/measure.py, whose numbers
+examples/README.md quotes, finds the right neighbour pairs and bands."""
+
+from __future__ import annotations
+
+import importlib.util
+import pathlib
+
+import numpy as np
+import pytest
+
+from flocking.config import RunConfig
+from flocking.trajectory import Frame
+
+EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
+SWEEPS = sorted(p for p in EXAMPLES.glob("*.toml") if "[grid]" in p.read_text())
+RUNS = sorted(set(EXAMPLES.glob("*.toml")) - set(SWEEPS))
+
+
+def _load_measure():
+    spec = importlib.util.spec_from_file_location("example_measure", EXAMPLES / "measure.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+measure = _load_measure()
+
+
+@pytest.mark.parametrize("path", RUNS, ids=lambda p: p.name)
+def test_every_example_run_config_loads(path):
+    config = RunConfig.from_toml(path.read_text(), source=str(path))
+    assert config.steps > 0
+    assert config.model.n > 0
+
+
+@pytest.mark.parametrize("path", SWEEPS, ids=lambda p: p.name)
+def test_every_example_sweep_loads(path):
+    from flocking.sweep.spec import SweepSpec
+
+    assert len(SweepSpec.load(path).points()) > 1
+
+
+def test_the_example_configs_were_found():
+    assert {p.name for p in RUNS} >= {"channel.toml", "nematic_lanes.toml", "obstacle_mill.toml", "binary_mixture.toml"}
+    assert {p.name for p in SWEEPS} >= {"vicsek1995.toml", "gregoire_chate2004.toml"}
+
+
+def _brute_pairs(frame, radius):
+    x = frame.points[:, : frame.dim].astype(np.float64)
+    periodic = ~np.asarray(frame.walls)
+    i, j = np.triu_indices(len(x), 1)
+    d = x[i] - x[j]
+    d = np.where(periodic, d - frame.box_lengths * np.round(d / frame.box_lengths), d)
+    close = np.einsum("ij,ij->i", d, d) < radius * radius
+    return set(zip(i[close].tolist(), j[close].tolist()))
+
+
+@pytest.mark.parametrize("dim, box, walls", [
+    (2, [10.0, 7.0], [False, False]),
+    (2, [10.0, 7.0], [True, False]),
+    (2, [5.0, 5.0], [True, True]),
+    (2, [1.5, 2.5], [False, False]),          # one and two cells per axis
+    (3, [4.0, 3.0, 5.0], [False, True, False]),
+    (3, [2.0, 2.0, 2.0], [False, False, False]),
+])
+def test_measure_pairs_are_exactly_those_closer_than_the_radius(dim, box, walls):
+    rng = np.random.default_rng(dim + len(box) + sum(walls))
+    box = np.array(box)
+    points = np.zeros((300, 3))
+    points[:, :dim] = (rng.random((300, dim)) - 0.5) * box  # centred, as in a trajectory
+    frame = Frame(0, dim, box, points, points, walls=walls)
+    i, j = measure.pairs(frame, 1.0)
+    found = set(zip(i.tolist(), j.tolist()))
+    assert len(found) == len(i)  # each pair once
+    assert np.all(i < j)
+    assert found == _brute_pairs(frame, 1.0)
+
+
+def _frame_2d(xy, box):
+    points = np.zeros((len(xy), 3))
+    points[:, :2] = np.asarray(xy) - np.asarray(box) / 2
+    return Frame(0, 2, box, points, points)
+
+
+def test_measure_band_is_a_quarter_for_a_uniform_density_and_one_for_a_band():
+    rng = np.random.default_rng(3)
+    box = [64.0, 32.0]
+    uniform = rng.random((20000, 2)) * box
+    # 20000 particles, 8 strips of 32: the densest window exceeds 1/4 by a few sigma at most
+    sigma = np.sqrt(0.25 * 0.75 / 20000)
+    assert 0.25 <= measure.band(_frame_2d(uniform, box), 0.0) < 0.25 + 5 * sigma
+    along_x = np.column_stack([rng.random(4000) * 64.0, 20.0 + rng.random(4000) * 3.0])
+    assert measure.band(_frame_2d(along_x, box), np.radians(5.0)) == 1.0
+    along_y = np.column_stack([30.0 + rng.random(4000) * 5.0, rng.random(4000) * 32.0])
+    assert measure.band(_frame_2d(along_y, box), np.radians(-85.0)) == 1.0
+    # a band along the box's diagonal (direction (64, 32)), which closes on itself
+    t = rng.random(4000)
+    diagonal = np.mod(np.column_stack([t * 64.0, t * 32.0 + rng.random(4000) * 2.0]), box)
+    angle = np.arctan2(32.0, 64.0)
+    assert measure.band(_frame_2d(diagonal, box), angle + 0.05) == 1.0
+    # cut across the wrong line, the same band looks almost uniform
+    assert measure.band(_frame_2d(diagonal, box), 0.0) < 0.35
