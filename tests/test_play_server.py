@@ -657,6 +657,30 @@ def test_foreign_origin_is_refused(client):
         assert reply(ws)["type"] == "state"
 
 
+def test_a_tab_closed_while_another_waits_lets_that_one_in():
+    """Closing a tab and reloading another reach the server in either order: a new tab
+    waits up to ADMIT_SECONDS for the memory a closing tab gives back."""
+    from flocking.play.server import ADMIT_SECONDS
+
+    tab = session_bytes(SMALL)
+    with TestClient(app := create_app(SMALL, memory=int(1.5 * tab))) as c:
+        first = c.websocket_connect("/ws")
+        paused(first.__enter__())
+        with c.websocket_connect("/ws") as second:  # accepted, waiting for memory
+            time.sleep(ADMIT_SECONDS / 4)
+            assert len(app.state.sessions) == 1
+            first.__exit__(None, None, None)
+            assert reply(second)["type"] == "state"
+            assert frame(second)["n"] == SMALL.n
+        # with nothing given back, the refusal comes after the wait
+        with c.websocket_connect("/ws") as one:
+            paused(one)
+            started = time.monotonic()
+            with c.websocket_connect("/ws") as other:
+                assert reply(other)["type"] == "refused"
+            assert time.monotonic() - started >= ADMIT_SECONDS
+
+
 def test_sixteen_tabs_are_served_and_a_seventeenth_is_told_why_not(client):
     import contextlib
 

@@ -14,8 +14,10 @@ session is closed (its steps stop within one step) and the stepping task cancell
 All tabs share one :class:`~flocking.play.budget.Budget`: at most ``max_sessions`` tabs,
 ``memory`` bytes for all of them, and ``cores``: each running tab steps at most its equal
 share, so its frames come at most as often as the estimated cost of a frame's steps
-allows. A tab the budget cannot take is told why (``{"type": "refused", "message":
-...}``) and its socket closed with code 1013 ("try again later"); the server goes on.
+allows. A tab the budget cannot take waits up to :data:`ADMIT_SECONDS` for a closing tab
+to give its share back (a tab closed and another reloaded at once reach the server in
+either order), then is told why (``{"type": "refused", "message": ...}``) and its socket
+closed with code 1013 ("try again later"); the server goes on.
 
 A socket whose ``Origin`` is another site is refused, so a web page elsewhere cannot
 drive the simulation on this machine.
@@ -48,6 +50,9 @@ HEADERS = {
     "Cache-Control": "no-cache",
 }
 TRY_LATER = 1013  # WebSocket close code: the server is busy, try again later
+#: how long a new tab waits for memory or a place before it is refused, asking every
+#: ADMIT_POLL seconds: a tab closed just before is given back within that
+ADMIT_SECONDS, ADMIT_POLL = 2.0, 0.1
 
 
 def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16, memory: int = DEFAULT_MEMORY,
@@ -68,10 +73,9 @@ def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16, memor
             await ws.close(code=1008)
             return
         await ws.accept()
-        try:
-            session = await asyncio.to_thread(Session, model, budget=budget)
-        except ParameterError as err:
-            await ws.send_text(json.dumps({"type": "refused", "message": str(err)}))
+        session = await admit(model, budget)
+        if isinstance(session, ParameterError):
+            await ws.send_text(json.dumps({"type": "refused", "message": str(session)}))
             await ws.close(code=TRY_LATER)
             return
         wake = asyncio.Event()
@@ -102,6 +106,20 @@ def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16, memor
     app.state.sessions = sessions
     app.state.budget = budget
     return app
+
+
+async def admit(model: Model, budget: Budget) -> Session | ParameterError:
+    """A new tab's session, or the budget's refusal after :data:`ADMIT_SECONDS` of asking
+    (a refused :class:`Session` costs nothing: the budget is asked first)."""
+    loop = asyncio.get_running_loop()
+    until = loop.time() + ADMIT_SECONDS
+    while True:
+        try:
+            return await asyncio.to_thread(Session, model, budget=budget)
+        except ParameterError as err:
+            if loop.time() >= until:
+                return err
+        await asyncio.sleep(ADMIT_POLL)
 
 
 async def stream(ws: WebSocket, session: Session, wake: asyncio.Event, period: float) -> None:
