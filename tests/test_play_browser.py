@@ -40,6 +40,7 @@ def serve(*options):
     finally:
         proc.terminate()
         proc.wait(timeout=20)
+        proc.stderr.close()
 
 
 @pytest.fixture(scope="module")
