@@ -97,6 +97,7 @@ def measure(path: str) -> dict[str, float]:
     traj = flocking.open(gsd)
     model = traj.parameters["model"]
     frames = [traj[k] for k in range(len(traj) // 2, len(traj))]
+    nematic = model.get("alignment_rule") == "nematic"
     rows = []
     for frame in frames:
         u = frame.headings[:, : frame.dim].astype(np.float64)
@@ -108,13 +109,14 @@ def measure(path: str) -> dict[str, float]:
             r = np.where(~np.asarray(frame.walls), r - frame.box_lengths * np.round(r / frame.box_lengths), r)
             r /= np.linalg.norm(r, axis=1)[:, None]
             row["milling"] = np.mean(r[:, 0] * u[:, 1] - r[:, 1] * u[:, 0])
-        i, j = pairs(frame, model["radius"])
+        if len(frame.types) > 1 or nematic:  # the pair fractions below
+            i, j = pairs(frame, model["radius"])
         if len(frame.types) > 1:
             for s, name in enumerate(frame.types):
                 m = u[frame.typeid == s].mean(axis=0)
                 row[f"phi_{name}"], row[f"heading_{name}"] = np.linalg.norm(m), m / np.linalg.norm(m)
             row["same_species"], row["same_species_random"] = same_fraction(frame.typeid.astype(np.int64), i, j)
-        if model.get("alignment_rule") == "nematic":
+        if nematic:
             theta = np.arctan2(u[:, 1], u[:, 0])
             q = np.mean(np.exp(2j * theta))
             row["nematic"] = abs(q)
