@@ -168,9 +168,9 @@ def draw_vision(args) -> None:
                       label=f"{labels[kind]} ({np.count_nonzero(classes == kind)})") for kind in labels]
     house.legend(ax, t, handles=handles, loc="center left", bbox_to_anchor=(1.0, 0.5), handletextpad=0.3)
     lim = SPREAD + 0.12
-    ax.set_xlim(-lim, lim)
-    ax.set_ylim(-lim, lim)
-    ax.set_aspect("equal")
+    ax.update_datalim([(-lim, -lim), (lim, lim)])
+    ax.autoscale_view(tight=True)
+    ax.set_aspect("equal", adjustable="datalim")  # the box keeps its place beside the legend
     ax.set_axis_off()
     house.title(fig, "The vision cone", f"$R$ = {RADIUS:g} · $\\theta_v$ = {VISION:g} rad "
                 f"({degrees:.0f}°) · classes checked against a step of the engine")
