@@ -6,9 +6,9 @@ result give a double in ``[0, 1)``. Nothing depends on thread scheduling, on the
 which particles are visited or on the backend, so a run is bitwise reproducible for any
 thread count and every backend draws exactly the same numbers.
 
-The functions are written once, in NumPy's integer semantics, and used twice: vectorised
-over arrays by the NumPy reference backend (``uniform``) and compiled by numba for the
-kernels (``uniform_jit``).
+The functions are written once, in NumPy's integer semantics, and used on every target:
+vectorised over arrays by the NumPy reference backend (:func:`uniform`), and compiled by
+:func:`flocking.rules.compile` for the CPU and CUDA kernels (:func:`draw`).
 
 All stream identifiers of the package are listed here, so that no two purposes ever share
 a random number:
@@ -17,11 +17,11 @@ a random number:
 >>> u = rng.uniform(seed=1, step=0, particle=[0, 1, 2], counter=rng.NOISE)
 >>> u.shape, bool(((0 <= u) & (u < 1)).all())
 ((3,), True)
->>> float(rng.uniform_jit(1, 0, 2, rng.NOISE)) == float(u[2])
+>>> from flocking.rules import compile
+>>> compile("cpu").draw(1, 0, 2, rng.NOISE) == float(u[2])  # the kernels' numbers
 True
 """
 
-import numba
 import numpy as np
 
 #: Initial positions: counter ``POSITION + axis``.
@@ -43,24 +43,32 @@ _S11 = np.uint64(11)
 _INV53 = 1.0 / 9007199254740992.0  # 2**-53
 
 
-def _uniform(seed, step, particle, counter):
-    """Absorb the four uint64 keys through splitmix64's finaliser, then keep 53 bits."""
-    h = _GOLDEN
-    for x in (seed, step, particle, counter):
-        z = h + x
-        z = (z ^ (z >> _S30)) * _M1
-        z = (z ^ (z >> _S27)) * _M2
-        h = z ^ (z >> _S31)
+#: the rules :func:`flocking.rules.compile` builds for the kernels, callees first
+RULES = ("absorb", "mix", "draw")
+
+
+def absorb(h, x):
+    """One round of splitmix64's finaliser absorbing the uint64 ``x`` into ``h``."""
+    z = h + x
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return z ^ (z >> _S31)
+
+
+def mix(seed, step, particle, counter):
+    """The four uint64 keys absorbed in turn; the top 53 bits as a double in ``[0, 1)``.
+    Scalars or NumPy arrays alike."""
+    h = absorb(_GOLDEN, seed)
+    h = absorb(h, step)
+    h = absorb(h, particle)
+    h = absorb(h, counter)
     return (h >> _S11) * _INV53
 
 
-_uniform_jit = numba.njit(cache=True, inline="always")(_uniform)
-
-
-@numba.njit(cache=True, inline="always")
-def uniform_jit(seed, step, particle, counter):
-    """One uniform double in ``[0, 1)``; for use inside numba kernels."""
-    return _uniform_jit(np.uint64(seed), np.uint64(step), np.uint64(particle), np.uint64(counter))
+def draw(seed, step, particle, counter):
+    """One uniform double in ``[0, 1)`` from four integer keys: the kernels' form
+    (compiled by :func:`flocking.rules.compile`)."""
+    return mix(np.uint64(seed), np.uint64(step), np.uint64(particle), np.uint64(counter))
 
 
 def uniform(seed, step, particle, counter):
@@ -68,4 +76,4 @@ def uniform(seed, step, particle, counter):
     keys = [np.asarray(x).astype(np.uint64) for x in (seed, step, particle, counter)]
     keys = np.broadcast_arrays(*keys)
     with np.errstate(over="ignore"):
-        return np.asarray(_uniform(*keys), dtype=np.float64)
+        return np.asarray(mix(*keys), dtype=np.float64)

@@ -1,0 +1,78 @@
+"""The rules of the model, written once and compiled for every target.
+
+The geometry (:mod:`flocking.rules.geometry`), the physics of a step
+(:mod:`flocking.rules.physics`) and the random numbers (:func:`flocking.rng.draw`) are
+plain scalar Python functions. :func:`compile` builds them for a target from that one
+text, each function given a namespace in which its callees are their compiled versions
+and the constants of its module (``ZERO``, ``ONE``, ..., and ``REAL``, the conversion)
+have the target's float type:
+
+- ``compile("cpu")``: numba ``njit`` functions, inlined into the CPU kernels
+  (:mod:`flocking.backends.cpu_kernels`) and into :mod:`flocking.space`'s NumPy face;
+- ``compile("cuda", np.float32)`` (or ``np.float64``): CUDA device functions for
+  :mod:`flocking.backends.cuda_kernels`, whose float32 kernels then never promote.
+
+The result is a module object, so numba resolves ``R.wrap(...)`` inside a kernel to the
+compiled function (a plain namespace would not be typed). The reference backend is the
+deliberate exception: it transcribes docs/model.md in NumPy on its own, as the oracle
+these rules are tested against.
+
+>>> import numba
+>>> R = compile("cpu")
+>>> @numba.njit
+... def f(x):
+...     return R.wrap(x, 4.0)
+>>> f(-0.25)
+3.75
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import types
+
+import numba
+import numpy as np
+
+from .. import rng
+from . import geometry, physics
+
+#: the modules of rules, callees first; each lists its rules in ``RULES``, callees first
+MODULES = (rng, geometry, physics)
+
+
+def constants(real) -> dict:
+    """The names the rules use for constants, as values of the float type ``real``."""
+    return dict(REAL=real, ZERO=real(0.0), ONE=real(1.0), HALF=real(0.5), TWO=real(2.0), FOUR=real(4.0),
+                TWO_PI=real(2.0 * math.pi), INF=real(np.inf), TINY=real(1e-12), NEAR_X=real(0.9))
+
+
+@functools.lru_cache(maxsize=None)
+def compile(target: str = "cpu", real=np.float64) -> types.ModuleType:  # noqa: A001 - the verb is the point
+    """Every rule compiled for ``target`` (``"cpu"`` or ``"cuda"``) with floats of type
+    ``real``, as the attributes of a module ``flocking.rules.<target>``."""
+    if target == "cpu":
+        jit = numba.njit(inline="always", fastmath=False, error_model="numpy")
+    elif target == "cuda":
+        from numba import cuda
+
+        jit = cuda.jit(device=True)
+    else:
+        raise ValueError(f"rules.compile: target must be 'cpu' or 'cuda' (got {target!r})")
+    built: dict[str, object] = {}
+    bound = constants(real)
+    for module in MODULES:
+        namespace = dict(vars(module))
+        namespace.update(bound)
+        namespace.update(built)
+        for name in module.RULES:
+            plain = getattr(module, name)
+            function = types.FunctionType(plain.__code__, namespace, name, plain.__defaults__, plain.__closure__)
+            function.__qualname__, function.__module__, function.__doc__ = plain.__qualname__, module.__name__, \
+                plain.__doc__
+            built[name] = namespace[name] = jit(function)
+    out = types.ModuleType(f"{__name__}.{target}_{np.dtype(real).name}")
+    vars(out).update(built)
+    vars(out).update(bound)
+    return out

@@ -1,0 +1,124 @@
+"""The physics of one step, written once: the heading update and what a neighbour adds.
+
+Plain scalar functions that :func:`flocking.rules.compile` builds for the CPU and CUDA
+kernels, in the order of docs/model.md. Constants are module globals (``ZERO``, ``ONE``,
+..., ``REAL``) that the compiler binds to the target's float type; random numbers come
+from :func:`flocking.rng.draw`. A kernel passes literal zeros (no field, no turn) or a
+flag it fixes at compile time where a model leaves an extension off, and the compiler
+then folds that code away: the plain model runs the plain arithmetic.
+
+>>> from flocking.rules import compile
+>>> R = compile("cpu")
+>>> ux, uy = R.update_2d(1.0, 0.0, 0.0, 3.0, 3.0, 1.0, 0.0, False, 7, 0, 0, 0.0, 0.0, 0.0, 0.0)  # no noise
+>>> round(ux, 12), round(uy, 12)
+(0.0, 1.0)
+"""
+
+import math
+
+from ..rng import NOISE, draw
+
+REAL = float
+ZERO, ONE, HALF, TWO, FOUR = 0.0, 1.0, 0.5, 2.0, 4.0
+TWO_PI, TINY, NEAR_X = 2.0 * math.pi, 1e-12, 0.9
+
+#: the functions of this module that the compiler builds, callees first
+RULES = ("greater", "update_2d", "update_3d")
+
+
+def greater(a, b):
+    """``max(a, b)`` as Python's (``a`` unless ``b`` is larger); CUDA has no builtin."""
+    return b if b > a else a
+
+
+def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, turn):
+    """From ``u_i(t)``, the sum ``S_i`` and its number of terms to ``u_i(t+1)`` (2D):
+    field ``h g``, vectorial noise, mean direction, alignment by ``epsilon``, chirality
+    ``turn = omega dt``, angular noise ``eta`` (docs/model.md, steps 3 to 6)."""
+    z0 = REAL(draw(seed, step, pid, NOISE))
+    if h != ZERO:
+        sx = sx + h * count * gx
+        sy = sy + h * count * gy
+    if vectorial:
+        angle = TWO_PI * z0
+        sx = sx + eta * count * math.cos(angle)
+        sy = sy + eta * count * math.sin(angle)
+    norm = math.sqrt(sx * sx + sy * sy)
+    if norm > ZERO:
+        mx, my = sx / norm, sy / norm
+    else:
+        mx, my = ux, uy
+    if epsilon == ONE:
+        wx, wy = mx, my
+    else:
+        a = epsilon * math.atan2(ux * my - uy * mx, ux * mx + uy * my)
+        c, s = math.cos(a), math.sin(a)
+        wx, wy = ux * c - uy * s, ux * s + uy * c
+    if turn != ZERO:
+        c, s = math.cos(turn), math.sin(turn)
+        wx, wy = wx * c - wy * s, wx * s + wy * c
+    if not vectorial:
+        a = eta * (z0 - HALF)
+        c, s = math.cos(a), math.sin(a)
+        wx, wy = wx * c - wy * s, wx * s + wy * c
+    norm = math.sqrt(wx * wx + wy * wy)
+    return wx / norm, wy / norm
+
+
+def update_3d(ux, uy, uz, sx, sy, sz, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, gz):
+    """:func:`update_2d` in 3D (no chirality): the cap of angular noise sampled in the
+    frame of the aligned heading."""
+    z0 = REAL(draw(seed, step, pid, NOISE))
+    z1 = REAL(draw(seed, step, pid, NOISE + 1))
+    if h != ZERO:
+        sx = sx + h * count * gx
+        sy = sy + h * count * gy
+        sz = sz + h * count * gz
+    if vectorial:
+        z = TWO * z0 - ONE
+        rho = math.sqrt(greater(ZERO, ONE - z * z))
+        angle = TWO_PI * z1
+        sx = sx + eta * count * (rho * math.cos(angle))
+        sy = sy + eta * count * (rho * math.sin(angle))
+        sz = sz + eta * count * z
+    norm = math.sqrt(sx * sx + sy * sy + sz * sz)
+    if norm > ZERO:
+        mx, my, mz = sx / norm, sy / norm, sz / norm
+    else:
+        mx, my, mz = ux, uy, uz
+    if epsilon == ONE:
+        wx, wy, wz = mx, my, mz
+    else:
+        c = ux * mx + uy * my + uz * mz
+        cx, cy, cz = uy * mz - uz * my, uz * mx - ux * mz, ux * my - uy * mx
+        s = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if s < TINY:
+            if c > ZERO:
+                wx, wy, wz = mx, my, mz
+            else:
+                wx, wy, wz = ux, uy, uz
+        else:
+            alpha = math.atan2(s, c)
+            f, g = math.sin((ONE - epsilon) * alpha), math.sin(epsilon * alpha)
+            wx, wy, wz = (f * ux + g * mx) / s, (f * uy + g * my) / s, (f * uz + g * mz) / s
+    if not vectorial:
+        sin_q = math.sin(eta / FOUR)
+        cos_b = ONE - z0 * (TWO * (sin_q * sin_q))
+        sin_b = math.sqrt(greater(ZERO, ONE - cos_b * cos_b))
+        phi = TWO_PI * z1
+        if abs(wx) < NEAR_X:
+            ax, ay = ONE, ZERO
+        else:
+            ax, ay = ZERO, ONE
+        dot = ax * wx + ay * wy
+        e1x, e1y, e1z = ax - dot * wx, ay - dot * wy, ZERO - dot * wz
+        n1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        e1x, e1y, e1z = e1x / n1, e1y / n1, e1z / n1
+        e2x, e2y, e2z = wy * e1z - wz * e1y, wz * e1x - wx * e1z, wx * e1y - wy * e1x
+        cp, sp = math.cos(phi), math.sin(phi)
+        wx = cos_b * wx + sin_b * (cp * e1x + sp * e2x)
+        wy = cos_b * wy + sin_b * (cp * e1y + sp * e2y)
+        wz = cos_b * wz + sin_b * (cp * e1z + sp * e2z)
+    norm = math.sqrt(wx * wx + wy * wy + wz * wz)
+    return wx / norm, wy / norm, wz / norm
+
