@@ -437,7 +437,11 @@ def test_cuda_refuses_only_more_moment_sums_than_its_shared_memory_holds():
 
 REFUSED = [
     (dict(obstacles=[{"centre": [5, 5], "radius": 2}, {"centre": [7, 5], "radius": 1}]), "obstacles: obstacles 0 and 1 overlap"),
-    (dict(obstacles=[{"centre": [5, 5], "radius": 6}]), "obstacles: obstacle 0 must be narrower than the box"),
+    (dict(obstacles=[{"centre": [5, 5], "radius": 6}]), "obstacles: obstacle 0 must keep at least one step (0.5) from its own periodic image"),
+    # the gap to its own image (10 - 2 * 4.9 = 0.2) is shorter than a step: a pushed-out particle could land in the image
+    (dict(obstacles=[{"centre": [5, 5], "radius": 4.9}]), "obstacles: obstacle 0 must keep at least one step (0.5) from its own periodic image along axis 0: radius at most 4.75"),
+    (dict(species=[{"n": 0}, {"n": 100}]), "species: every species must hold at least one particle (species 'A' has n = 0"),
+    (dict(species=[{"fraction": 0.001}, {"fraction": 0.999}]), "species: every species must hold at least one particle (species 'A' has fraction 0.001"),
     (dict(obstacles=[{"centre": [5, 5], "radius": 0.4}]), "obstacles: must be radii above one step"),
     (dict(obstacles=[{"centre": [5, 5, 5], "radius": 1}]), "obstacles: must be centres of 2 numbers"),
     (dict(obstacles=[{"centre": [5, 11], "radius": 1}]), "obstacles: must be centres inside the box"),

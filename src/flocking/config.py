@@ -10,7 +10,7 @@ True
 >>> RunConfig.from_dict({"stesp": 5})
 Traceback (most recent call last):
 ...
-flocking.model.ParameterError: stesp: unknown parameter; did you mean 'steps'?
+flocking.checks.ParameterError: stesp: unknown parameter; did you mean 'steps'?
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ import os
 from typing import Any
 
 from . import backends
-from .model import MODEL_KEYS, Model, ParameterError, _integer, check_keys, dumps_toml, loads_toml
+from .checks import ParameterError, check_keys, integer
+from .model import MODEL_KEYS, Model, dumps_toml, loads_toml
 from .state import State
 
 RUN_DEFAULTS = {"steps": 1000, "every": 10, "checkpoint_every": 1000, "init": "random", "backend": "cpu",
@@ -40,9 +41,9 @@ class RunConfig:
     precision: str = RUN_DEFAULTS["precision"]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "steps", _integer("steps", self.steps, 0))
-        object.__setattr__(self, "every", _integer("every", self.every, 0))
-        object.__setattr__(self, "checkpoint_every", _integer("checkpoint_every", self.checkpoint_every, 0))
+        object.__setattr__(self, "steps", integer("steps", self.steps, 0))
+        object.__setattr__(self, "every", integer("every", self.every, 0))
+        object.__setattr__(self, "checkpoint_every", integer("checkpoint_every", self.checkpoint_every, 0))
         if not isinstance(self.init, str):
             raise ParameterError(f"init: must be 'random', 'aligned' or a .gsd file (got {self.init!r})")
         if self.init not in INITS and not os.path.isfile(self.init):

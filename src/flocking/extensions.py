@@ -2,7 +2,7 @@
 
 :class:`~flocking.model.Model` holds them; this module parses what a user writes (Python
 values or TOML) into frozen values and checks each against the rest of the model. Every
-check raises a one-line :class:`~flocking.model.ParameterError` naming the parameter.
+check raises a one-line :class:`~flocking.checks.ParameterError` naming the parameter.
 
 >>> parse_boundary("periodic,wall", 2)
 ('periodic', 'wall')
@@ -19,10 +19,7 @@ import math
 import numbers
 from typing import Any
 
-from .model import ParameterError
-from .model import _comma_numbers as comma_numbers
-from .model import _fail as fail
-from .model import _real as real
+from .checks import ParameterError, comma_numbers, fail, real
 
 BOUNDARIES = ("periodic", "wall")
 
@@ -158,8 +155,7 @@ def species_counts(species: tuple[Species, ...], n: int | None) -> tuple[int, ..
             counts.append(int(s.n))
         if n is not None and sum(counts) != n:
             raise ParameterError(f"species: the counts must add up to n = {n} (got {sum(counts)})")
-        if sum(counts) < 1:
-            fail("species", "counts that add up to at least 1", counts)
+        _refuse_empty(species, counts)
         return tuple(counts)
     fractions = [real("species", s.fraction, low=0.0, high=1.0, allowed="fractions in [0, 1]") for s in species]
     if not math.isclose(sum(fractions), 1.0, rel_tol=0, abs_tol=1e-9):
@@ -169,7 +165,17 @@ def species_counts(species: tuple[Species, ...], n: int | None) -> tuple[int, ..
     order = sorted(range(len(exact)), key=lambda i: (-(exact[i] - counts[i]), i))
     for i in order[: n - sum(counts)]:
         counts[i] += 1
+    _refuse_empty(species, counts)
     return tuple(counts)
+
+
+def _refuse_empty(species: tuple[Species, ...], counts: list[int]) -> None:
+    """An empty species has no polar order and no say in the flock: it is refused."""
+    for s, count in zip(species, counts):
+        if count < 1:
+            given = f"n = {s.n}" if s.fraction is None else f"fraction {s.fraction:g} of n = {sum(counts)}"
+            raise ParameterError(f"species: every species must hold at least one particle "
+                                 f"(species {s.name!r} has {given}, 0 particles)")
 
 
 def parse_coupling(value: Any, count: int) -> tuple[tuple[float, ...], ...] | None:
@@ -189,18 +195,39 @@ def parse_coupling(value: Any, count: int) -> tuple[tuple[float, ...], ...] | No
 
 
 def parse_field(value: Any, dim: int) -> tuple[float, ...] | None:
-    """The field's direction as given (any non-zero length); from a list or ``"1,0"``."""
+    """The field's direction as given (any finite, non-zero length); from a list or ``"1,0"``.
+
+    >>> parse_field("1e-300,-1e-300", 2)
+    (1e-300, -1e-300)
+    """
     if value is None:
         return None
     value = comma_numbers("field", value, f"a direction of {dim} numbers such as 1,0")
     items = _sequence("field", value, "[1, 0]")
     if len(items) != dim:
         fail("field", f"a direction of {dim} numbers", value)
-    g = tuple(real("field", x, low=-1e150, high=1e150, allowed="a direction of numbers in [-1e150, 1e150]")
-              for x in items)
+    g = tuple(real("field", x, allowed="a direction of finite numbers") for x in items)
     if not any(g):
         fail("field", "a direction: a non-zero vector", value)
     return g
+
+
+def unit_vector(v: tuple[float, ...]) -> tuple[float, ...]:
+    """``v / |v|`` for any finite, non-zero ``v``, without overflow or underflow: the
+    components are first divided by the largest magnitude (exact for a power of two,
+    and the largest becomes +-1), so the sum of squares lies in ``[1, d]``.
+
+    >>> unit_vector((3e300, -4e300))
+    (0.6, -0.8)
+    >>> unit_vector((1e-320, 0.0))
+    (1.0, 0.0)
+    """
+    scale = max(abs(x) for x in v)
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise ValueError(f"unit_vector: needs a finite, non-zero vector (got {v!r})")
+    w = tuple(x / scale for x in v)
+    norm = math.sqrt(sum(x * x for x in w))
+    return tuple(x / norm for x in w)
 
 
 def periodic_distance(a: tuple[float, ...], b: tuple[float, ...], box: tuple[float, ...],
@@ -217,10 +244,11 @@ def periodic_distance(a: tuple[float, ...], b: tuple[float, ...], box: tuple[flo
 
 def check_obstacles(obstacles: tuple[Obstacle, ...], box: tuple[float, ...], walls: tuple[bool, ...],
                     step: float) -> None:
-    """Obstacles inside the box, each wider than a step, at least a step from every wall
-    and from each other, and smaller than half the box on periodic axes (so that no
-    obstacle covers the box or overlaps its own image). These guarantee that a particle
-    pushed out of one obstacle lands outside every obstacle and inside the walls."""
+    """Obstacles inside the box, each wider than a step, at least a step from every wall,
+    from each other and from their own periodic images (``L - 2a >= step`` along each
+    periodic axis). A particle inside an obstacle got there within one step, so its
+    mirror point lies less than a step outside the surface: these guarantee that it lands
+    outside every obstacle (and every image) and inside the walls."""
     for i, ob in enumerate(obstacles):
         if not ob.radius > step:
             fail("obstacles", f"radii above one step, speed * dt = {step:.6g} (obstacle {i})", ob.radius)
@@ -230,9 +258,10 @@ def check_obstacles(obstacles: tuple[Obstacle, ...], box: tuple[float, ...], wal
             if wall and not (c - ob.radius >= step and c + ob.radius <= length - step):
                 raise ParameterError(f"obstacles: obstacle {i} must keep at least one step ({step:.6g}) from the "
                                      f"walls of axis {a} (centre {c:g}, radius {ob.radius:g}, box {length:g})")
-            if not wall and not 2 * ob.radius < length:
-                raise ParameterError(f"obstacles: obstacle {i} must be narrower than the box along periodic axis "
-                                     f"{a} (radius {ob.radius:g}, box {length:g}): it would cover the box")
+            if not wall and not length - 2 * ob.radius >= step:
+                raise ParameterError(f"obstacles: obstacle {i} must keep at least one step ({step:.6g}) from its "
+                                     f"own periodic image along axis {a}: radius at most {(length - step) / 2:.6g} "
+                                     f"(got {ob.radius:g}, box {length:g})")
         for j in range(i):
             other = obstacles[j]
             gap = periodic_distance(ob.centre, other.centre, box, walls) - ob.radius - other.radius

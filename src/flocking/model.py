@@ -13,17 +13,19 @@ True
 >>> Model(noise=7.0)
 Traceback (most recent call last):
 ...
-flocking.model.ParameterError: noise: must be in [0, 2*pi] for angular noise (got 7.0)
+flocking.checks.ParameterError: noise: must be in [0, 2*pi] for angular noise (got 7.0)
 """
 
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import numbers
 import tomllib
 from typing import Any
+
+from . import extensions as ext
+from .checks import ParameterError, check_keys, comma_numbers, fail, integer, real
 
 #: Density and box side used when too few of ``n``, ``density`` and ``box`` are given.
 DEFAULT_DENSITY = 2.0
@@ -47,53 +49,14 @@ MAX_PARTICLES = 2_000_000_000
 MAX_VECTORIAL_NOISE = 1000.0
 
 
-class ParameterError(ValueError):
-    """An invalid parameter; the message names the parameter and what is allowed."""
-
-
-def _fail(name: str, allowed: str, value: Any) -> None:
-    raise ParameterError(f"{name}: must be {allowed} (got {value!r})")
-
-
-def _real(name: str, value: Any, *, low: float | None = None, high: float | None = None,
-          low_open: bool = False, allowed: str | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        _fail(name, "a number", value)
-    value = float(value)
-    ok = math.isfinite(value)
-    if ok and low is not None:
-        ok = value > low if low_open else value >= low
-    if ok and high is not None:
-        ok = value <= high
-    if not ok:
-        if allowed is None:
-            if high is None:
-                allowed = f"a finite number {'>' if low_open else '>='} {low:g}"
-            else:
-                allowed = f"in {'(' if low_open else '['}{low:g}, {high:g}]"
-        _fail(name, allowed, value)
-    return value
-
-
-def _integer(name: str, value: Any, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            _fail(name, f"a whole number >= {low}", value)
-    if value < low:
-        _fail(name, f"a whole number >= {low}", value)
-    return int(value)
-
-
 def _choice(name: str, value: Any) -> Any:
     if value not in CHOICES[name]:
-        _fail(name, "one of " + ", ".join(repr(c) for c in CHOICES[name]), value)
+        fail(name, "one of " + ", ".join(repr(c) for c in CHOICES[name]), value)
     return value
 
 
 def _speed(name: str, value: Any) -> float:
-    return _real(name, value, low=0.0, low_open=True,
+    return real(name, value, low=0.0, low_open=True,
                  allowed=None if name == "speed" else "speeds that are finite numbers > 0")
 
 
@@ -101,47 +64,36 @@ def _noise(name: str, value: Any, noise_type: str, scale: str, where: str = "") 
     """A noise amplitude in the model's stored form (radians for angular noise)."""
     suffix = f" ({where})" if where else ""
     if scale == "unit":
-        value = _real(name, value, low=0.0, high=1.0, allowed=f"in [0, 1]{suffix}")
+        value = real(name, value, low=0.0, high=1.0, allowed=f"in [0, 1]{suffix}")
         if noise_type == "angular":
             value = 2.0 * math.pi * value
     if noise_type == "angular":
-        return _real(name, value, low=0.0, high=2.0 * math.pi, allowed=f"in [0, 2*pi] for angular noise{suffix}")
-    return _real(name, value, low=0.0, high=MAX_VECTORIAL_NOISE,
+        return real(name, value, low=0.0, high=2.0 * math.pi, allowed=f"in [0, 2*pi] for angular noise{suffix}")
+    return real(name, value, low=0.0, high=MAX_VECTORIAL_NOISE,
                  allowed=f"in [0, {MAX_VECTORIAL_NOISE:g}] for vectorial noise{suffix}")
 
 
 def _field_strength(name: str, value: Any, where: str = "") -> float:
     suffix = f" ({where})" if where else ""
-    return _real(name, value, low=0.0, high=MAX_VECTORIAL_NOISE,
+    return real(name, value, low=0.0, high=MAX_VECTORIAL_NOISE,
                  allowed=f"in [0, {MAX_VECTORIAL_NOISE:g}]{suffix}")
-
-
-def _comma_numbers(name: str, value: Any, allowed: str) -> Any:
-    """A string such as ``"4,5"`` as a list of floats (refused naming ``name`` and what is
-    ``allowed`` if it is not one); any other value as it is."""
-    if not isinstance(value, str):
-        return value
-    try:
-        return [float(x) for x in value.split(",")]
-    except ValueError:
-        _fail(name, allowed, value)
 
 
 def parse_box(value: Any, dim: int) -> tuple[float, ...] | None:
     """A box from a number, a sequence, or a string such as ``"4,5"``; one length per axis."""
     if value is None:
         return None
-    value = _comma_numbers("box", value, "a positive number or one per axis such as 4,5")
+    value = comma_numbers("box", value, "a positive number or one per axis such as 4,5")
     if isinstance(value, numbers.Real) and not isinstance(value, bool):
         value = [value]
     try:
-        lengths = [_real("box", x, low=0.0, low_open=True) for x in value]
+        lengths = [real("box", x, low=0.0, low_open=True) for x in value]
     except TypeError:
-        _fail("box", "a positive number or one per axis such as 4,5", value)
+        fail("box", "a positive number or one per axis such as 4,5", value)
     if len(lengths) == 1:
         lengths = lengths * dim
     if len(lengths) != dim:
-        _fail("box", f"one number or {dim} numbers for dim={dim}", value)
+        fail("box", f"one number or {dim} numbers for dim={dim}", value)
     return tuple(lengths)
 
 
@@ -184,20 +136,20 @@ class Model:
 
     def __post_init__(self, noise_scale: str) -> None:
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
-        dim = _integer("dim", self.dim, 2)
+        dim = integer("dim", self.dim, 2)
         put("dim", _choice("dim", dim))
         for name in ("speeds", "neighbours", "noise_type", "update", "alignment_rule"):
             _choice(name, getattr(self, name))
         _choice("noise_scale", noise_scale)
         put("speed", _speed("speed", self.speed))
-        put("radius", _real("radius", self.radius, low=0.0, low_open=True, high=1e150))  # R^2 must be finite
-        put("k", _integer("k", self.k, 1))
-        put("alignment", _real("alignment", self.alignment, low=0.0, high=1.0))
-        put("delay", _integer("delay", self.delay, 0))
-        put("dt", _real("dt", self.dt, low=0.0, low_open=True))
-        put("seed", _integer("seed", self.seed, 0))
+        put("radius", real("radius", self.radius, low=0.0, low_open=True, high=1e150))  # R^2 must be finite
+        put("k", integer("k", self.k, 1))
+        put("alignment", real("alignment", self.alignment, low=0.0, high=1.0))
+        put("delay", integer("delay", self.delay, 0))
+        put("dt", real("dt", self.dt, low=0.0, low_open=True))
+        put("seed", integer("seed", self.seed, 0))
         if self.seed >= 2**63:
-            _fail("seed", "a whole number in [0, 2**63)", self.seed)
+            fail("seed", "a whole number in [0, 2**63)", self.seed)
         put("noise", _noise("noise", self.noise, self.noise_type, noise_scale))
         self._parse_extensions(noise_scale)
         self._resolve_size()
@@ -222,11 +174,11 @@ class Model:
             if sp.speed is not None:
                 values["speed"] = _speed(f"species: {where} speed", sp.speed)
             if sp.speeds is not None and sp.speeds not in CHOICES["speeds"]:
-                _fail("species", f"speeds one of 'constant', 'uniform' ({where})", sp.speeds)
+                fail("species", f"speeds one of 'constant', 'uniform' ({where})", sp.speeds)
             if sp.noise is not None:
                 values["noise"] = _noise("species", sp.noise, self.noise_type, noise_scale, where)
             if sp.alignment is not None:
-                values["alignment"] = _real("species", sp.alignment, low=0.0, high=1.0,
+                values["alignment"] = real("species", sp.alignment, low=0.0, high=1.0,
                                             allowed=f"alignment in [0, 1] ({where})")
             if sp.chirality is not None:
                 values["chirality"] = self._chirality("species", sp.chirality, where)
@@ -237,7 +189,7 @@ class Model:
         if checked and checked[0].n is not None and self.n is None and (self.density is None or self.box is None):
             put("n", sum(ext.species_counts(self.species, None)))  # counts given: they make n
         put("coupling", ext.parse_coupling(self.coupling, max(len(checked), 1)))
-        put("vision", _real("vision", self.vision, low=0.0, low_open=True, high=math.pi,
+        put("vision", real("vision", self.vision, low=0.0, low_open=True, high=math.pi,
                             allowed="a half-angle in (0, pi]"))
         put("chirality", self._chirality("chirality", self.chirality))
         put("field", ext.parse_field(self.field, dim))
@@ -246,11 +198,11 @@ class Model:
             raise ParameterError("field: must be given (a direction such as 1,0) when a field_strength is above 0")
 
     def _chirality(self, name: str, value: Any, where: str = "") -> float:
-        omega = _real(name, value, allowed=f"a finite number{f' ({where})' if where else ''}")
+        omega = real(name, value, allowed=f"a finite number{f' ({where})' if where else ''}")
         if omega != 0.0 and self.dim == 3:
-            _fail(name, f"0 in 3D: chirality is a turn in the plane{f' ({where})' if where else ''}", omega)
+            fail(name, f"0 in 3D: chirality is a turn in the plane{f' ({where})' if where else ''}", omega)
         if not abs(omega) * self.dt <= math.pi:
-            _fail(name, f"at most pi / dt = {math.pi / self.dt:.6g} in magnitude: a turn of at most half a "
+            fail(name, f"at most pi / dt = {math.pi / self.dt:.6g} in magnitude: a turn of at most half a "
                         f"circle a step{f' ({where})' if where else ''}", omega)
         return omega
 
@@ -265,16 +217,16 @@ class Model:
             if not (step < limit if wall else step <= limit):  # also refuses an overflow to inf
                 allowed = (f"{'below' if wall else 'at most'} {limit / self.dt:.6g} with dt = {self.dt:g}, so that "
                            f"one step (speed * dt) covers {'less than' if wall else 'at most'} {words}, {limit:.6g}")
-                _fail(name, allowed, self.max_speed)
+                fail(name, allowed, self.max_speed)
 
     def _resolve_size(self) -> None:
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         n, density = self.n, self.density
         box = parse_box(self.box, self.dim)
         if n is not None:
-            n = _integer("n", n, 1)
+            n = integer("n", n, 1)
         if density is not None:
-            density = _real("density", density, low=0.0, low_open=True)
+            density = real("density", density, low=0.0, low_open=True)
         if n is not None and density is not None and box is not None:
             raise ParameterError("n, density, box: give at most two of them (the third follows)")
         if density is None and (n is None or box is None):
@@ -286,19 +238,19 @@ class Model:
                 box = ((n / density) ** (1.0 / self.dim),) * self.dim
         volume = math.prod(box)
         if not (math.isfinite(volume) and volume > 0):
-            _fail("box", "sides whose product (the volume) is a finite number above 0", box)
+            fail("box", "sides whose product (the volume) is a finite number above 0", box)
         if n is None:
             if not density * volume <= MAX_PARTICLES:  # n = density * volume, within bounds
                 if self.density is None:
-                    _fail("box", f"small enough for at most {MAX_PARTICLES:.0e} particles at density {density:g}",
+                    fail("box", f"small enough for at most {MAX_PARTICLES:.0e} particles at density {density:g}",
                           box)
-                _fail("density", f"at most {MAX_PARTICLES:.0e} particles in a box of volume {volume:g}", density)
+                fail("density", f"at most {MAX_PARTICLES:.0e} particles in a box of volume {volume:g}", density)
             n = round(density * volume)
             if n < 1:
-                _fail("density", f"large enough for at least one particle in a box of volume {volume:g}",
+                fail("density", f"large enough for at least one particle in a box of volume {volume:g}",
                       density)
         if n > MAX_PARTICLES:
-            _fail("n", f"at most {MAX_PARTICLES:.0e}", n)
+            fail("n", f"at most {MAX_PARTICLES:.0e}", n)
         put("n", n)
         put("box", box)
         put("density", n / volume)
@@ -333,11 +285,15 @@ class Model:
 
     @property
     def field_direction(self) -> tuple[float, ...] | None:
-        """The field's unit direction ``g`` (``field`` holds the direction as given)."""
+        """The field's unit direction ``g`` (``field`` holds the direction as given),
+        normalised without overflow or underflow for any finite, non-zero length.
+
+        >>> Model(n=10, box=4.0, field=(1e-170, 1e-170)).field_direction
+        (0.7071067811865475, 0.7071067811865475)
+        """
         if self.field is None:
             return None
-        norm = math.sqrt(sum(x * x for x in self.field))
-        return tuple(x / norm for x in self.field)
+        return ext.unit_vector(self.field)
 
     @property
     def max_speed(self) -> float:
@@ -448,16 +404,6 @@ EXTENSION_DEFAULTS = {"boundary": "periodic", "obstacles": (), "species": (), "c
                       "field_strength": 0.0}
 
 
-def check_keys(data: dict[str, Any], allowed: tuple[str, ...]) -> None:
-    """Refuse unknown keys, naming the key and the closest allowed one."""
-    for key in data:
-        if key not in allowed:
-            close = difflib.get_close_matches(str(key), allowed, n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            name = key if str(key).isidentifier() else repr(key)  # keep the message on one line
-            raise ParameterError(f"{name}: unknown parameter{hint}")
-
-
 # -- TOML ------------------------------------------------------------------------------
 
 
@@ -500,5 +446,3 @@ def loads_toml(text: str, source: str = "config") -> dict[str, Any]:
     except tomllib.TOMLDecodeError as err:
         raise ParameterError(f"{source}: not valid TOML ({err})") from None
 
-
-from . import extensions as ext  # noqa: E402 - it builds on ParameterError and the checks above

@@ -164,11 +164,11 @@ class Budget:
     >>> budget.reserve(b, 50 * MiB, "n")
     Traceback (most recent call last):
     ...
-    flocking.model.ParameterError: n: this needs 50 MiB, but only 40 MiB of the 100 MiB that all tabs share are free; lower n or close another tab
+    flocking.checks.ParameterError: n: this needs 50 MiB, but only 40 MiB of the 100 MiB that all tabs share are free; lower n or close another tab
     >>> budget.join(object(), 1)
     Traceback (most recent call last):
     ...
-    flocking.model.ParameterError: too many open tabs (at most 2); close one
+    flocking.checks.ParameterError: too many open tabs (at most 2); close one
     >>> budget.leave(a); budget.reserve(b, 50 * MiB, "n"); budget.share()
     2.0
     """

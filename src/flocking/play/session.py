@@ -192,11 +192,11 @@ def check_limits(model: Model) -> Model:
     >>> check_limits(Model(n=10**6, density=2.0))
     Traceback (most recent call last):
     ...
-    flocking.model.ParameterError: n: must be at most 200000 in flocking play (got 1000000)
+    flocking.checks.ParameterError: n: must be at most 200000 in flocking play (got 1000000)
     >>> check_limits(Model(n=100, box=10.0, speed=6.0))
     Traceback (most recent call last):
     ...
-    flocking.model.ParameterError: speed: v0 dt must be at most half the box side, 5, in flocking play (got 6)
+    flocking.checks.ParameterError: speed: v0 dt must be at most half the box side, 5, in flocking play (got 6)
     """
     if model.n > MAX_N:
         raise ParameterError(f"n: must be at most {MAX_N} in flocking play (got {model.n})")
@@ -227,7 +227,7 @@ def check_step(model: Model, positions: np.ndarray, name: str = "n") -> float:
     >>> check_step(Model(n=6000, density=2.0, radius=30.0), np.full((6000, 2), 1.0), "radius")
     Traceback (most recent call last):
     ...
-    flocking.model.ParameterError: radius: one step would take about 0.9 s here (6000 neighbour candidates a particle; at most 0.5 s in flocking play); lower radius, n or density
+    flocking.checks.ParameterError: radius: one step would take about 0.9 s here (6000 neighbour candidates a particle; at most 0.5 s in flocking play); lower radius, n or density
     """
     seconds, candidates = step_cost(model, positions)
     if seconds > MAX_STEP_SECONDS:

@@ -43,11 +43,11 @@ True
 >>> SweepSpec.from_dict({"grid": {"nosie": [1.0]}})
 Traceback (most recent call last):
 ...
-flocking.model.ParameterError: grid.nosie: unknown parameter; did you mean 'noise'?
+flocking.checks.ParameterError: grid.nosie: unknown parameter; did you mean 'noise'?
 >>> SweepSpec.from_dict({"base": {"n": 50, "box": 8.0}, "grid": {"field": [1.0, 0.0]}})
 Traceback (most recent call last):
 ...
-flocking.model.ParameterError: grid.field: one value is a direction (a list), so an axis is a list of directions such as [[1.0, 0.0], [0.0, 1.0]]; a single value goes in [base] (got [1.0, 0.0])
+flocking.checks.ParameterError: grid.field: one value is a direction (a list), so an axis is a list of directions such as [[1.0, 0.0], [0.0, 1.0]]; a single value goes in [base] (got [1.0, 0.0])
 """
 
 from __future__ import annotations
@@ -63,7 +63,8 @@ from typing import Any
 
 from ..backends.cuda import check_supported
 from ..config import RUN_DEFAULTS, RUN_KEYS, RunConfig
-from ..model import ParameterError, _integer, check_keys, loads_toml
+from ..checks import ParameterError, check_keys, integer
+from ..model import loads_toml
 
 SWEEP_DEFAULTS = {"seed": 0, "replicas": 1, "discard": 0.5, "keep_trajectories": False, "time_series": False}
 TABLES = ("sweep", "base", "grid")
@@ -151,16 +152,16 @@ class SweepSpec:
                 raise ParameterError(f"grid.{key}: also set in [base]; keep it in one of the two")
         values = {key: expand(key, value) for key, value in grid.items()}
         s = {**SWEEP_DEFAULTS, **settings}
-        seed = _integer("sweep.seed", s["seed"], 0)
+        seed = integer("sweep.seed", s["seed"], 0)
         if seed >= 2**63:
             raise ParameterError(f"sweep.seed: must be a whole number in [0, 2**63) (got {seed})")
-        replicas = _integer("sweep.replicas", s["replicas"], 1)
+        replicas = integer("sweep.replicas", s["replicas"], 1)
         discard = s["discard"]
         if isinstance(discard, bool) or not isinstance(discard, numbers.Real):
             raise ParameterError(f"sweep.discard: must be a number of steps (integer) or a fraction "
                                  f"in [0, 1) (got {discard!r})")
         if isinstance(discard, numbers.Integral):
-            discard = _integer("sweep.discard", discard, 0)
+            discard = integer("sweep.discard", discard, 0)
         elif not 0.0 <= discard < 1.0:
             raise ParameterError(f"sweep.discard: a fraction must be in [0, 1) (got {discard!r})")
         for flag in ("keep_trajectories", "time_series"):
@@ -227,7 +228,7 @@ def expand(key: str, value: Any) -> list:
         for part in ("start", "stop", "num"):
             if part not in value:
                 raise ParameterError(f"{where}: a range needs start, stop and num (missing {part})")
-        num = _integer(f"{where}.num", value["num"], 1)
+        num = integer(f"{where}.num", value["num"], 1)
         start, stop = (value[p] for p in ("start", "stop"))
         for p, x in (("start", start), ("stop", stop)):
             if isinstance(x, bool) or not isinstance(x, numbers.Real):

@@ -16,7 +16,7 @@ canvas: no display and no pyplot state are involved.
 >>> check_format("run.tiff")
 Traceback (most recent call last):
 ...
-flocking.model.ParameterError: output: must end in .png, .svg or .pdf (got 'run.tiff')
+flocking.checks.ParameterError: output: must end in .png, .svg or .pdf (got 'run.tiff')
 """
 
 from __future__ import annotations
