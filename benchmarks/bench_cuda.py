@@ -110,43 +110,29 @@ def ptx_report() -> None:
     registers, spills and shared memory of each (needs the CUDA toolkit's ptxas)."""
     import types
 
-    from numba import cuda
-    from numba import types as nt
-
     import numba.cuda.dispatcher as dispatcher
+    from numba import cuda
 
     # device functions ask the current device for its compute capability: there is none
     dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
-    from flocking.backends.cuda_kernels import Extensions, build
+    from flocking.backends import cuda_kernels
+    from flocking.backends.cuda_sort import Launch
+    from flocking.backends.features import Features
 
-    def a(dt, nd):
-        return nt.Array(dt, nd, "C")
-
-    i64, i32, u64, f64, b = nt.int64, nt.int32, nt.uint64, nt.float64, nt.boolean
+    # the plain kernels, and those of a model with every extension (two species with a
+    # coupling, nematic alignment, a vision cone; walls, obstacles, field and
+    # chirality are data)
+    every = Features(extended=True, coupling=True, nematic=True, cone=True)
     with tempfile.TemporaryDirectory() as folder:
-        # the plain kernels, and those of a model with every extension (walls on x, a vision
-        # cone, nematic alignment, two species with a coupling; obstacles, field, chirality)
-        every = Extensions(walls=(True, False, False), cone=True, nematic=True, coupling=True, species=2)
-        for precision, real, dim, k, ext in [(p, r, d, k, e) for e in (None, every)
-                                             for p, r in (("float64", nt.float64), ("float32", nt.float32))
-                                             for d in (2, 3) for k in (0, 7)]:
-            kernels = build(precision, dim, k, 256, 8, 8, ext)
-            signatures = {
-                "step": (a(real, 2), a(real, 2), a(real, 1), a(i32, 1), a(i32, 1), a(real, 1), a(i64, 1),
-                         a(real, 2), a(i64, 1), a(u64, 1), a(i64, 1), a(real, 3), b, a(real, 2),
-                         a(real, 2), a(i32, 1), a(real, 1), a(u64, 1), a(real, 3), a(i64, 1), a(real, 2),
-                         a(real, 1), a(real, 2)),
-                "cells": (a(real, 2), a(real, 1), a(i64, 1), a(u64, 1)),
-                "digits": (a(u64, 1), a(i32, 1), i64, i64, a(i64, 1), b),
-                "scatter": (a(u64, 1), a(u64, 1), i64, i64, a(i32, 1), a(i64, 1), a(i32, 1), a(i64, 1)),
-                "gather": (a(u64, 1), a(real, 2), a(real, 2), a(i32, 1), a(real, 1), a(i64, 1),
-                           a(real, 2), a(real, 2), a(i32, 1), a(real, 1), a(i32, 1), a(f64, 2), a(i64, 1)),
-                "finish": (a(f64, 2), a(i64, 1), a(f64, 3), a(i64, 1), a(i32, 1), a(i32, 1), b),
-            }
+        for precision, dim, k, (features, species) in [(p, d, k, e) for e in ((Features(), 1), (every, 2))
+                                                      for p in ("float64", "float32") for d in (2, 3) for k in (0, 7)]:
+            kernels = cuda_kernels.build(precision, dim, k, Launch(256, 8, 8), features, species)
+            signatures = cuda_kernels.signatures(precision, dim, species)
             for name, signature in signatures.items():
                 if k and name != "step":
                     continue  # only the step kernel depends on k
-                ptx, _ = cuda.compile_ptx(getattr(kernels, name).py_func, signature, cc=(9, 0))
+                kernel = getattr(kernels.sort if name in ("digits", "scatter") else kernels, name)
+                ptx, _ = cuda.compile_ptx(kernel.py_func, signature, cc=(9, 0))
                 path = f"{folder}/{name}.ptx"
                 with open(path, "w") as f:
                     f.write(ptx)
@@ -154,7 +140,7 @@ def ptx_report() -> None:
                                      capture_output=True, text=True).stderr
                 info = "; ".join(line.split("info    : ")[-1] for line in out.splitlines()
                                  if "Used" in line or "spill" in line)
-                label = "extended" if ext else "plain"
+                label = "extended" if features.extended else "plain"
                 print(f"{label} {precision} {dim}D k={k} {name:8s} {info}", flush=True)
 
 

@@ -250,7 +250,7 @@ def test_help_shows_every_default():
 
 def test_warm_up_model_takes_the_kernels_of_the_run():
     """The tiny model compiled before a run has three cells a side exactly when the run does."""
-    from flocking.backends.cpu import cell_grid
+    from flocking.backends.cells import cell_grid
     from flocking.cli.run import tiny_model
 
     for model in (flocking.Model(n=100_000), flocking.Model(n=100_000, radius=2.5), flocking.Model(dim=3, radius=3),

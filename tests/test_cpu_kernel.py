@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from flocking import Model, State
-from flocking.backends.cpu import CPUBackend, cell_grid
+from flocking.backends.cells import cell_grid
+from flocking.backends.cpu import CPUBackend
 from flocking.backends.reference import ReferenceBackend
 
 TOL = 1e-12

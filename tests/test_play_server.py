@@ -736,7 +736,7 @@ def test_session_changes_speeds_with_speed():
 def test_step_cost_counts_each_neighbouring_cell_once(dim):
     import itertools
 
-    from flocking.backends.cpu import cell_grid
+    from flocking.backends.cells import cell_grid
 
     for box in ([2.5, 9.0, 7.0], [1.5, 2.5, 7.0], [9.0, 8.0, 7.5]):  # 1, 2 and 3+ cells a side
         model = Model(dim=dim, n=400, box=box[:dim], seed=5)

@@ -15,11 +15,11 @@ the sequence is captured once as a CUDA graph and replayed: one host call a step
 Nothing crosses to the host until a block of up to :attr:`Engine.rows` steps is done;
 then one copy brings back their polar order.
 
-Same numbers as the other backends. The kernels transcribe :mod:`flocking.backends.kernels`
-and draw :mod:`flocking.rng`'s counter-based numbers with the same uint64 arithmetic, so
+Same numbers as the other backends. The kernels compile :mod:`flocking.rules` (the update,
+the pair rule, the geometry, the random numbers) from the text the CPU kernels compile, so
 in float64 one step matches a reference step to rounding. ``precision="float32"`` keeps
 positions, headings and all per-particle arithmetic in float32 (a GPU's fast path; the
-random numbers are the same, the polar order is summed in float64).
+random numbers are the same, the moments are summed in float64).
 
 Determinism. After every step particles are sorted by (cell, id), a pure function of
 the state: a backend built from a state takes exactly the steps of one that reached that
@@ -27,12 +27,12 @@ state by running (so a checkpoint needs only the delay ring), and a replica of a
 ensemble gives bit for bit what the same model alone gives. Neighbour sums follow that
 order and the polar order is reduced in fixed blocks of each replica.
 
-Extensions (walls, obstacles, species and coupling, vision cones, nematic alignment,
-chirality, a field) run in kernels compiled for what the model has on
-(:func:`extensions`); :attr:`Engine.moments` then holds each step's per-species and
-nematic moment sums, from which :class:`flocking.Simulation` records their observables.
+Extensions run in kernels compiled for what the model switches on
+(:func:`flocking.backends.features.features`, as on the CPU); :attr:`Engine.moments` then
+holds each step's per-species and nematic moment sums, from which
+:class:`flocking.Simulation` records their observables.
 
-Cells are those of the CPU backend (:func:`flocking.backends.cpu.cell_grid`): at least
+Cells are those of the CPU backend (:func:`flocking.backends.cells.cell_grid`): at least
 ``R`` wide, at most about one per particle, with no capacity per cell: a band or a
 single cell may hold any number of particles, and the sort costs the same.
 
@@ -49,14 +49,17 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..model import Model, ParameterError
+from ..observables import moment_width
 from ..state import State, frame_arrays
-from .cpu import cell_grid
+from .cells import cell_grid
+from .cuda_sort import Launch, radix
+from .features import features, ring_width, tables
 
 PRECISIONS = ("float64", "float32")
 
 #: (threads per block, radix bits a pass, sort items a thread) on a GPU and under the
 #: simulator (one Python thread per GPU thread: small blocks keep it quick)
-_GPU_SHAPE, _SIM_SHAPE = (256, 8, 8), (16, 4, 4)
+_GPU_SHAPE, _SIM_SHAPE = Launch(256, 8, 8), Launch(16, 4, 4)
 
 #: parameters every replica of an ensemble shares (they fix the cells, the arrays and the
 #: kernels' extensions)
@@ -73,7 +76,7 @@ MAX_WIDTH = 20
 MAX_REPLICAS = 2**20
 
 
-def _cuda():
+def require_cuda():
     """numba.cuda, once it is known to have a device (or the simulator)."""
     hint = "backend: 'cuda' needs an NVIDIA GPU with numba-cuda (pip install 'flocking[cuda]'"
     try:
@@ -99,9 +102,9 @@ def _steady_simulator() -> None:
     """Ready numba's CUDA simulator (once a process; the simulator only) for the kernels.
 
     - The simulator runs the uint64 hash in NumPy scalars, which warn on the (intended)
-      wrap-around of the multiplications: those warnings are ignored, and the registry a
-      first warning adds to the kernels' module is put there beforehand (the simulator's
-      threads may be iterating over that module's globals).
+      wrap-around of the multiplications: those warnings are ignored (the registry a first
+      warning would add to the rules' globals is there from the start,
+      :func:`flocking.rules.compile`: the simulator's threads may be iterating over them).
     - It runs a block's threads as Python threads and finds a call site's shared array by
       a look-up then an insertion in a dict; a thread switched out between the two lets
       another allocate a second array, so under load two threads of a block could see
@@ -113,8 +116,7 @@ def _steady_simulator() -> None:
     from numba.cuda.simulator import kernelapi
     from numba.np import numpy_support
 
-    warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning, "flocking.backends.cuda_kernels")
-    vars(sys.modules["flocking.backends.cuda_kernels"]).setdefault("__warningregistry__", {})
+    warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning, "flocking.rng")
     shared = kernelapi.FakeCUDAShared
     if getattr(shared.array, "serialised", False):
         return
@@ -179,8 +181,9 @@ class Engine:
         check_supported(models)
         if r * n >= 2**31:
             raise ParameterError(f"n: the cuda backend takes fewer than 2**31 particles in all (got {r} x {n})")
-        cuda = _cuda()
-        from .cuda_kernels import GEOM, INTS, build, passes
+        cuda = require_cuda()
+        from . import cuda_kernels
+        from .cuda_sort import passes
 
         self._cuda = cuda
         self.models = tuple(models)
@@ -189,65 +192,52 @@ class Engine:
         simulated = _simulated()
         if simulated:
             _steady_simulator()
-        block, bits, items = _SIM_SHAPE if simulated else _GPU_SHAPE
+        launch = _SIM_SHAPE if simulated else _GPU_SHAPE
         k = model.k if model.neighbours == "topological" else 0
-        self._k = kernels = build(precision, d, k, block, bits, items, extensions(model))
+        self._features = features(model)
+        self._species = len(model.species_counts)
+        self._k = kernels = cuda_kernels.build(precision, d, k, launch, self._features, self._species)
         real = kernels.real
         self._real = real
         self._width = kernels.width
-
-        box = np.asarray(model.box, dtype=np.float64)
-        nc = cell_grid(model)
-        cells = int(np.prod(nc))
-        nc3 = [int(x) for x in nc] + [1] * (3 - d)
-        box3 = list(box) + [1.0] * (3 - d)
-        geom = dict(inv0=nc3[0] / box3[0], inv1=nc3[1] / box3[1], inv2=nc3[2] / box3[2],
-                    l0=box3[0], l1=box3[1], l2=box3[2], r2=model.radius**2,
-                    width=float(np.min(box / nc)), dt=model.dt)
-        m = r * n
-        per_particle = any(s.n and not np.all(s.speeds == s.speeds[0]) for s in states)
         self._rows = max(1, min(1024, 2**22 // max(1, r * d)))
-        ints = dict(nc0=nc3[0], nc1=nc3[1], nc2=nc3[2], n=n, cells=cells, replicas=r,
-                    vectorial=int(model.noise_type == "vectorial"), backward=int(model.update == "backward"),
-                    speeds=int(per_particle), rows=self._rows, obstacles=len(model.obstacles))
-        # the values are converted to `real` one by one, exactly as the kernels' constants
-        self._geom = cuda.to_device(np.array([real(geom[name]) for name in GEOM], dtype=real))
-        self._ints = cuda.to_device(np.array([ints[name] for name in INTS], dtype=np.int64))
+        per_particle = any(s.n and not np.all(s.speeds == s.speeds[0]) for s in states)
+        self._cells = cells = int(np.prod(cell_grid(model)))
+        self._P = cuda.to_device(geometry_record(model, real, replicas=r, rows=self._rows, speeds=per_particle))
         # a constant speed is the state's (a species may set it apart from model.speed)
         self._speed = [real(s.speeds[0] if s.n else x.speed) for x, s in zip(models, states)]
-        self._rp = cuda.to_device(np.array([[real(x.noise), real(x.alignment), v] for x, v in zip(models, self._speed)],
-                                           dtype=real))
-        self._sp, self._bounds, self._cpl, self._xr, self._obs = (
-            cuda.to_device(a) for a in extension_arrays(models, real))
-        self._rtau = cuda.to_device(np.array([x.delay for x in models], dtype=np.int64))
-        self._rseed = cuda.to_device(np.array([x.seed for x in models], dtype=np.uint64))
+        rp = np.zeros(r, dtype=cuda_kernels.replica_dtype(real))
+        for i, (x, v) in enumerate(zip(models, self._speed)):
+            rp[i] = (x.seed, x.delay, x.noise, x.alignment, v)
+        self._rp = cuda.to_device(rp)
+        self._tables = cuda_kernels.DeviceTables(*(cuda.to_device(a) for a in device_tables(models, real)))
         self._per_particle = per_particle
-        self._cells = cells
 
-        self._block, self._qb = block, -(-n // block)
-        self._passes = passes(max(1, (r * cells - 1).bit_length()), bits)
+        self._block, self._qb = launch.block, -(-n // launch.block)
+        self._passes = passes(max(1, (r * cells - 1).bit_length()), launch.bits)
+        m = r * n
         dev = cuda.device_array
-        self._pos, self._head = dev((d, m), real), dev((d, m), real)
-        self._new_pos, self._new_head = dev((d, m), real), dev((d, m), real)
-        self._ids, self._new_ids = dev(m, np.int32), dev(m, np.int32)
         size = m if per_particle else 1
-        self._spd, self._new_spd = dev(size, real), dev(size, real)
+        self._cur = cuda_kernels.Particles(dev((d, m), real), dev((d, m), real), dev(size, real), dev(m, np.int32))
+        self._new = cuda_kernels.Particles(dev((d, m), real), dev((d, m), real), dev(size, real), dev(m, np.int32))
         self._rec, self._rec2 = dev(m, np.uint64), dev(m, np.uint64)
         start = np.zeros(r * cells + 1, dtype=np.int32)
         start[-1] = m
         self._start = cuda.to_device(start)
         self._partial = dev((self._width, r * self._qb), np.float64)
         self._phi = cuda.to_device(np.zeros((r, self._rows, self._width)))
-        self._species = len(model.species_counts)
         self.moments = np.zeros((r, 0, self._width))
         self._clock = cuda.to_device(np.array([states[0].step, 1], dtype=np.int64))
-        self._hist = cuda.to_device(np.zeros(kernels.max_passes * kernels.digits_per_pass, dtype=np.int32))
-        self._tile_counter = cuda.to_device(np.zeros(kernels.max_passes, dtype=np.int32))
-        self._status = cuda.to_device(np.zeros(-(-m // kernels.tile) * kernels.digits_per_pass, dtype=np.int64))
+        sort = kernels.sort
+        self._hist = cuda.to_device(np.zeros(sort.max_passes * sort.digits_per_pass, dtype=np.int32))
+        self._tile_counter = cuda.to_device(np.zeros(sort.max_passes, dtype=np.int32))
+        self._status = cuda.to_device(np.zeros(-(-m // sort.tile) * sort.digits_per_pass, dtype=np.int64))
         self._taus = [x.delay for x in models]
-        # (slot, particle, sums and count), the cpu backend's layout: a step reads and
-        # writes the slab of slot t % tau, d + 1 values a particle
-        self._ring = cuda.to_device(np.zeros((max(self._taus), m, d + 1) if max(self._taus) else (1, 1, 1), dtype=real))
+        # (slot, particle, sums): the cpu backend's layout, a step reads and writes the slab
+        # of slot t % tau
+        width = ring_width(d, self._features)
+        self._ring = cuda.to_device(np.zeros((max(self._taus), m, width) if max(self._taus) else (1, 1, width),
+                                             dtype=real))
         self._step_count = states[0].step
         self._graphs = graphs and not simulated
         self._graph = None
@@ -265,20 +255,20 @@ class Engine:
             p = np.where(p >= box.astype(real), p - box.astype(real), p)  # rounding may reach L (not at a wall)
             pos[:, r * n:(r + 1) * n] = p.T
             head[:, r * n:(r + 1) * n] = s.headings.T
-        self._new_pos.copy_to_device(pos)
-        self._new_head.copy_to_device(head)
-        self._new_ids.copy_to_device(np.tile(np.arange(n, dtype=np.int32), self.replicas))
+        self._new.pos.copy_to_device(pos)
+        self._new.head.copy_to_device(head)
+        self._new.ids.copy_to_device(np.tile(np.arange(n, dtype=np.int32), self.replicas))
         if self._per_particle:
-            self._new_spd.copy_to_device(np.concatenate([s.speeds for s in states]).astype(real))
+            self._new.spd.copy_to_device(np.concatenate([s.speeds for s in states]).astype(real))
         k = self._k
-        k.cells[self.replicas * self._qb, self._block](self._new_pos, self._geom, self._ints, self._rec)
+        k.cells[self.replicas * self._qb, self._block](self._new.pos, self._P, self._rec)
         self._sort(tick=False)
         if max(self._taus):
             self._load_ring(memories)
 
     def _load_ring(self, memories: Sequence[dict | None]) -> None:
         """The delay ring: from each replica's memory, or primed with today's sums."""
-        n, d = self.n, self.dim
+        n = self.n
         given = [m.get("ring") if m else None for m in memories]
         if any(ring is None and tau for ring, tau in zip(given, self._taus)):
             self._launch_step(prime=True)
@@ -289,19 +279,18 @@ class Engine:
             if saved is None or not tau:
                 continue
             saved = np.asarray(saved, dtype=np.float64)
-            if saved.shape != (tau, n, d + 1):
+            width = self._ring.shape[2]
+            if saved.shape != (tau, n, width):
                 raise ParameterError(f"resume: the saved delay ring has shape {saved.shape}, "
-                                     f"not (delay, n, dim + 1) = {(tau, n, d + 1)}")
+                                     f"not (delay, n, {width}) = {(tau, n, width)}")
             ring[:tau, r * n:(r + 1) * n] = saved
         self._ring.copy_to_device(ring)
 
     def _launch_step(self, prime: bool = False, stream=0) -> None:
         k = self._k
         k.step[self.replicas * self._qb, self._block, stream](
-            self._pos, self._head, self._spd, self._ids, self._start, self._geom, self._ints,
-            self._rp, self._rtau, self._rseed, self._clock, self._ring, prime,
-            self._new_pos, self._new_head, self._new_ids, self._new_spd, self._rec,
-            self._sp, self._bounds, self._cpl, self._xr, self._obs)
+            self._cur, self._start, self._new, self._rec, self._P, self._rp, self._tables, self._clock, self._ring,
+            prime)
         if not prime:
             self._sort(tick=True, stream=stream)
 
@@ -309,12 +298,11 @@ class Engine:
         """Sort ``rec`` (id order) by cell into the live arrays; cell starts; with
         ``tick``, the step counter moves on and the polar order goes into its row."""
         k, block = self._k, self._block
-        src = _radix(k, self._rec, self._rec2, self.replicas * self.n, self._passes, self._hist, self._status,
-                     self._tile_counter, self._clock, tick, stream)
-        k.gather[self.replicas * self._qb, block, stream](
-            src, self._new_pos, self._new_head, self._new_ids, self._new_spd, self._ints,
-            self._pos, self._head, self._ids, self._spd, self._start, self._partial, self._bounds)
-        k.finish[self.replicas, block, stream](self._partial, self._ints, self._phi, self._clock, self._hist,
+        src = radix(k.sort, self._rec, self._rec2, self.replicas * self.n, self._passes, self._hist, self._status,
+                    self._tile_counter, self._clock, tick, stream)
+        k.gather[self.replicas * self._qb, block, stream](src, self._new, self._P, self._cur, self._start,
+                                                          self._partial, self._tables.bounds)
+        k.finish[self.replicas, block, stream](self._partial, self._P, self._phi, self._clock, self._hist,
                                                self._tile_counter, tick)
 
     def _capture(self):
@@ -377,9 +365,9 @@ class Engine:
     def states(self) -> list[State]:
         """Copies in particle-id order, float64 (float32 headings renormalised)."""
         n, d = self.n, self.dim
-        ids = self._ids.copy_to_host()
-        pos_all, head_all = self._pos.copy_to_host(), self._head.copy_to_host()
-        spd_all = self._spd.copy_to_host() if self._per_particle else None
+        ids = self._cur.ids.copy_to_host()
+        pos_all, head_all = self._cur.pos.copy_to_host(), self._cur.head.copy_to_host()
+        spd_all = self._cur.spd.copy_to_host() if self._per_particle else None
         box = _periodic_box(self.models[0])
         out = []
         for r, model in enumerate(self.models):
@@ -415,32 +403,20 @@ class Engine:
         return out
 
 
-def _radix(k, rec, rec2, m: int, npass: int, hist, status, tiles, clock, tick: bool, stream=0):
-    """Sort ``rec[:m]`` by the upper 32 bits (``npass`` radix passes, ``rec2`` the other
-    buffer); the buffer that holds the result."""
-    grid = -(-m // k.tile)
-    k.digits[grid, k.block, stream](rec, hist, m, npass, clock, tick)
-    src, dst = rec, rec2
-    for p in range(npass):
-        k.scatter[grid, k.block, stream](src, dst, m, p, hist, status, tiles, clock)
-        src, dst = dst, src
-    return src
-
-
-def radix_sort(records: np.ndarray, key_bits: int = 31, shape: tuple[int, int, int] | None = None) -> np.ndarray:
+def radix_sort(records: np.ndarray, key_bits: int = 31, launch: Launch | None = None) -> np.ndarray:
     """``records`` (uint64) sorted stably by their upper 32 bits, which must be below
     ``2**key_bits``, by the device's radix sort (the sort of every step, on its own).
 
-    ``shape`` is (threads per block, bits a pass, items a thread); by default the one
-    the backend uses on this device (or under the simulator).
+    ``launch`` is the :class:`~flocking.backends.cuda_sort.Launch` shape; by default the
+    one the backend uses on this device (or under the simulator).
     """
-    cuda = _cuda()
-    from .cuda_kernels import build, passes
+    cuda = require_cuda()
+    from . import cuda_sort
 
     if _simulated():
         _steady_simulator()
-    block, bits, items = shape or (_SIM_SHAPE if _simulated() else _GPU_SHAPE)
-    k = build("float64", 2, 0, block, bits, items)
+    launch = Launch(*launch) if launch else (_SIM_SHAPE if _simulated() else _GPU_SHAPE)
+    k = cuda_sort.build(launch)
     records = np.ascontiguousarray(records, dtype=np.uint64)
     m = len(records)
     if m == 0:
@@ -450,7 +426,8 @@ def radix_sort(records: np.ndarray, key_bits: int = 31, shape: tuple[int, int, i
     tiles = cuda.to_device(np.zeros(k.max_passes, dtype=np.int32))
     status = cuda.to_device(np.zeros(-(-m // k.tile) * k.digits_per_pass, dtype=np.int64))
     clock = cuda.to_device(np.array([0, 1], dtype=np.int64))
-    return _radix(k, rec, rec2, m, passes(key_bits, bits), hist, status, tiles, clock, False).copy_to_host()
+    return cuda_sort.radix(k, rec, rec2, m, cuda_sort.passes(key_bits, launch.bits), hist, status, tiles, clock,
+                           False).copy_to_host()
 
 
 def _periodic_box(model: Model) -> np.ndarray:
@@ -459,47 +436,53 @@ def _periodic_box(model: Model) -> np.ndarray:
     return np.where(np.asarray(model.walls), np.inf, np.asarray(model.box, dtype=np.float64))
 
 
-def extensions(model: Model):
-    """What the kernels of ``model`` fix at compile time
-    (:class:`flocking.backends.cuda_kernels.Extensions`), or None for the plain model.
+def geometry_record(model: Model, real, replicas: int = 1, rows: int = 1, speeds: bool = False) -> np.ndarray:
+    """The kernels' geometry record ``P`` (:func:`flocking.backends.cuda_kernels.geometry_dtype`)
+    of ``model``, for ``replicas`` replicas, ``rows`` rows of the moment table and
+    per-particle ``speeds`` or one (an array of one record; each value converted to
+    ``real`` as the kernels' constants are)."""
+    from .cuda_kernels import geometry_dtype
 
-    >>> extensions(Model(n=10, box=5.0)) is None
-    True
-    >>> extensions(Model(n=10, box=5.0, boundary="wall,periodic", vision=2.0))
-    Extensions(walls=(True, False, False), cone=True, nematic=False, coupling=False, species=1)
-    """
-    if not model.extended:
-        return None
-    from .cuda_kernels import Extensions
+    d = model.dim
+    box = np.asarray(model.box, dtype=np.float64)
+    nc = cell_grid(model)
+    nc3 = [int(x) for x in nc] + [1] * (3 - d)
+    box3 = list(box) + [1.0] * (3 - d)
+    walls3 = list(model.walls) + [False] * (3 - d)
+    values = dict(nc0=nc3[0], nc1=nc3[1], nc2=nc3[2], n=model.n, cells=int(np.prod(nc)), replicas=replicas,
+                  vectorial=int(model.noise_type == "vectorial"), backward=int(model.update == "backward"),
+                  speeds=int(speeds), rows=rows, obstacles=len(model.obstacles),
+                  w0=int(walls3[0]), w1=int(walls3[1]), w2=int(walls3[2]),
+                  r2=model.radius**2, width=float(np.min(box / nc)), dt=model.dt)
+    for a in range(3):
+        values[f"inv{a}"] = nc3[a] / box3[a]
+        values[f"l{a}"] = box3[a]
+        values[f"h{a}"] = np.inf if walls3[a] else box3[a] / 2.0
+        values[f"s{a}"] = 2.0 * box3[a] if walls3[a] else box3[a]
+    dtype = geometry_dtype(real)
+    record = np.zeros(1, dtype=dtype)
+    for name in dtype.names:
+        record[0][name] = values[name] if dtype[name].kind == "i" else real(values[name])
+    return record
 
-    walls = tuple(model.walls) + (False,) * (3 - model.dim)
-    return Extensions(walls=walls, cone="vision" in model.extensions, nematic=model.alignment_rule == "nematic",
-                      coupling=model.coupling is not None, species=len(model.species_counts))
 
-
-def extension_arrays(models: Sequence[Model], real) -> tuple[np.ndarray, ...]:
-    """The step kernel's extension arguments for replicas ``models`` (which share
-    :data:`SHARED`), from the CPU backend's (:func:`flocking.backends.cpu_extensions.parameters`):
-    ``sp`` ``(R, S, 4)`` per replica and species (noise, alignment, ``chirality * dt``, field
-    strength), ``bounds`` (the first id of each species, then ``N``), the coupling, ``xr``
-    (the field's direction, the cosine of the vision half-angle) and the obstacles (centre,
-    radius; one unused row when there are none). The plain model's kernels take them and
-    read none."""
-    from .cpu_extensions import _COS, parameters
-
-    each = [parameters(x) for x in models]
-    _, _, obs, bounds, _, cpl, g, q = each[0]
-    if not len(obs):
-        obs = np.zeros((1, models[0].dim + 1))
-    sp = np.stack([species for _, _, _, _, species, _, _, _ in each])
-    return sp.astype(real), bounds, cpl.astype(real), np.array([*g, q[_COS]]).astype(real), obs.astype(real)
+def device_tables(models: Sequence[Model], real) -> tuple[np.ndarray, ...]:
+    """The fields of :class:`flocking.backends.cuda_kernels.DeviceTables` for replicas
+    ``models`` (which share :data:`SHARED`), from :func:`flocking.backends.features.tables`,
+    converted to ``real``: the species' values per replica ``(R, S, 4)``, then the first
+    model's bounds, coupling, field, cone and obstacles (an unused row when
+    there are none). The plain model's kernels take them and read none."""
+    each = [tables(x) for x in models]
+    first = each[0]
+    obstacles = first.obstacles if len(first.obstacles) else np.zeros((1, models[0].dim + 1))
+    species = np.stack([tb.species for tb in each]).astype(real)
+    return (species, first.bounds, first.coupling.astype(real), first.field.astype(real), first.cone.astype(real),
+            obstacles.astype(real))
 
 
 def check_supported(models: Sequence[Model]) -> None:
     """Refuse, in one line, models whose moment sums (``dim`` per species, then the
     nematic products) do not fit the kernels' shared memory (:data:`MAX_WIDTH`)."""
-    from ..observables import moment_width
-
     for model in models:
         width = moment_width(model)
         if width > MAX_WIDTH:

@@ -8,8 +8,8 @@ sum over cells of ``n_c`` times the particles in the block of cells around ``c``
 candidates a particle; all of it packed into one cell has ``n``. :data:`COSTS` holds the
 nanoseconds per particle and per candidate of each kernel. A model with extensions
 (:attr:`flocking.Model.extended`: walls, obstacles, species, a vision cone, chirality)
-runs a step of :mod:`flocking.backends.cpu_extensions` (dearer where each pair is
-weighted), and each obstacle adds :data:`OBSTACLE_COST` per particle.
+runs a step of :mod:`flocking.backends.cpu_kernels` compiled for them (dearer where each pair
+is weighted), and each obstacle adds :data:`OBSTACLE_COST` per particle.
 
 A tab's memory is the backend's (:meth:`~flocking.backends.cpu.CPUBackend.bytes_needed`)
 plus the copies a frame makes (:func:`session_bytes`). A :class:`Budget` shares a
@@ -34,8 +34,9 @@ import threading
 import numba
 import numpy as np
 
-from ..backends.cpu import CPUBackend, cell_grid
-from ..backends.cpu_extensions import PAIR_WEIGHTS
+from ..backends.cells import cell_grid
+from ..backends.cpu import CPUBackend, kernel_name
+from ..backends.features import features
 from ..model import Model, ParameterError
 
 #: nanoseconds of one core per particle and per neighbour candidate in a step, by kernel
@@ -65,28 +66,27 @@ MiB = 2**20
 
 
 def kernel(model: Model) -> str:
-    """The cpu backend's kernel for ``model``: ``lines`` (metric, at least three cells
-    a side), ``generic`` (metric, a box under ``3R`` along some axis), ``topological``,
-    or with any extension ``extended lines`` (metric, at least three cells a side, no pair
-    weights), ``extended weighted`` (the same with a coupling matrix, nematic alignment or
-    a vision cone), ``extended`` (a box under ``3R``) and ``extended topological``.
+    """Which of :data:`COSTS` prices ``model``'s step: the cpu backend's kernel
+    (:func:`flocking.backends.cpu.kernel_name`) and what it compiles in
+    (:func:`flocking.backends.features.features`): ``lines`` (metric, at least three
+    cells a side), ``generic`` (metric, a box under ``3R`` along some axis),
+    ``topological``, or with any extension ``extended lines`` (no pair weights),
+    ``extended weighted`` (a coupling matrix, nematic alignment or a vision cone),
+    ``extended`` (a box under ``3R``) and ``extended topological``.
 
     >>> kernel(Model(n=100, box=10.0)), kernel(Model(n=100, box=10.0, boundary="wall"))
     ('lines', 'extended lines')
     >>> kernel(Model(n=100, box=10.0, vision=2.0)), kernel(Model(n=100, box=2.5, vision=2.0))
     ('extended weighted', 'extended')
     """
-    grid = np.all(cell_grid(model) >= 3)
-    if model.extended:
-        if model.neighbours == "topological":
-            return "extended topological"
-        if not grid:
-            return "extended"
-        weighted = not set(PAIR_WEIGHTS).isdisjoint(model.extensions)
-        return "extended weighted" if weighted else "extended lines"
+    on = features(model)
+    if kernel_name(model) == "lines":
+        if not on.extended:
+            return "lines"
+        return "extended weighted" if on.weighted else "extended lines"
     if model.neighbours == "topological":
-        return "topological"
-    return "lines" if grid else "generic"
+        return "extended topological" if on.extended else "topological"
+    return "extended" if on.extended else "generic"
 
 
 def step_cost(model: Model, positions: np.ndarray) -> tuple[float, float]:

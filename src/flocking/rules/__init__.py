@@ -36,10 +36,10 @@ import numba
 import numpy as np
 
 from .. import rng
-from . import geometry, physics
+from . import geometry, neighbours, physics
 
 #: the modules of rules, callees first; each lists its rules in ``RULES``, callees first
-MODULES = (rng, geometry, physics)
+MODULES = (rng, geometry, physics, neighbours)
 
 
 def constants(real) -> dict:
@@ -64,6 +64,9 @@ def compile(target: str = "cpu", real=np.float64) -> types.ModuleType:  # noqa: 
     bound = constants(real)
     for module in MODULES:
         namespace = dict(vars(module))
+        # a warning adds a registry to its globals: made beforehand, because numba's CUDA
+        # simulator iterates over a device function's globals while other threads run
+        namespace["__warningregistry__"] = {}
         namespace.update(bound)
         namespace.update(built)
         for name in module.RULES:

@@ -23,7 +23,7 @@ ZERO, ONE, HALF, TWO, FOUR = 0.0, 1.0, 0.5, 2.0, 4.0
 TWO_PI, TINY, NEAR_X = 2.0 * math.pi, 1e-12, 0.9
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("greater", "update_2d", "update_3d")
+RULES = ("greater", "update_2d", "update_3d", "species_of", "sees", "neighbour", "nematic_2d", "nematic_3d")
 
 
 def greater(a, b):
@@ -122,3 +122,58 @@ def update_3d(ux, uy, uz, sx, sy, sz, count, epsilon, eta, vectorial, seed, step
     norm = math.sqrt(wx * wx + wy * wy + wz * wz)
     return wx / norm, wy / norm, wz / norm
 
+
+def species_of(pid, bounds):
+    """The species of particle ``pid``: species are contiguous id ranges, species ``s``
+    from ``bounds[s]`` to ``bounds[s + 1]`` (the last bound is ``N``)."""
+    s = 0
+    while s + 2 < bounds.shape[0] and pid >= bounds[s + 1]:
+        s += 1
+    return s
+
+
+def sees(a, d2, cone):
+    """Whether a neighbour at squared distance ``d2`` with ``a = u_i . r_ij`` lies in the
+    vision cone, ``u_i . r >= |r| cos(theta)``: written ``a |a| >= cone d2`` with
+    ``cone = cos(theta) |cos(theta)|``, which needs no square root; ``cone = -4`` sees
+    all around (``a |a| >= -d2`` for a unit ``u``)."""
+    return a * abs(a) >= cone * d2
+
+
+def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nematic, with_cone, cone):
+    """What a candidate neighbour adds to a particle's sums (docs/model.md, steps 1 and 2
+    with the extensions): the particle has heading ``u``, the candidate heading ``v``, at
+    ``r = (dx, dy, dz)`` from it, ``d2 = |r|^2``; ``inside`` says whether the
+    neighbourhood rule admits it (within ``R``, or among the k nearest).
+
+    It counts only if also in the vision cone (``with_cone``: :func:`sees`). Its heading
+    is weighed by ``J c``: ``coupling``, the coupling of the two species (1 without a
+    matrix), and with ``nematic`` alignment ``c = -1`` where the headings point apart
+    (``u . v < 0``; ``c = 1`` at 0). Returns ``(J c v (3), counted (0 or 1))``; the z
+    entry is 0 in 2D. The flags ``dim``, ``nematic`` and ``with_cone`` are compile-time
+    constants of the kernels, which fold away what they leave out; no other branch, so
+    the CPU sums it in SIMD lanes."""
+    if with_cone:
+        a = ux * dx + uy * dy
+        if dim == 3:
+            a += uz * dz
+        inside = inside & sees(a, d2, cone)
+    n = ONE if inside else ZERO
+    w = n * coupling
+    if nematic:
+        dot = ux * vx + uy * vy
+        if dim == 3:
+            dot += uz * vz
+        w = w * (-ONE if dot < ZERO else ONE)
+    wz = vz * w if dim == 3 else ZERO
+    return vx * w, vy * w, wz, n
+
+
+def nematic_2d(wx, wy):
+    """The nematic moments of a heading in 2D: ``ux^2 - uy^2`` and ``2 ux uy``."""
+    return wx * wx - wy * wy, TWO * wx * wy
+
+
+def nematic_3d(wx, wy, wz):
+    """The nematic moments of a heading in 3D: ``u_a u_b`` for xx, yy, zz, xy, xz, yz."""
+    return wx * wx, wy * wy, wz * wz, wx * wy, wx * wz, wy * wz

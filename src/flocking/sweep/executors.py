@@ -157,9 +157,9 @@ class Dask:
 
 def gpu_here() -> None:
     """Raise the ``cuda`` backend's one-line error unless this process can run it."""
-    from ..backends.cuda import _cuda
+    from ..backends.cuda import require_cuda
 
-    _cuda()
+    require_cuda()
 
 
 def _gpu_answer() -> str | None:

@@ -1,0 +1,575 @@
+"""The CPU backend's step: one family of numba kernels for the plain model and every extension.
+
+:func:`build` compiles the two kernels of a step for one value of
+:class:`~flocking.backends.features.Features` (what the model switches on), as closures
+over its flags, so an extension that is off is not in the code at all: ``build(Features())``
+is the plain model's step, and each extension adds only its own work. The kernels are
+thin loops; the physics is :mod:`flocking.rules` compiled for the CPU (``R``).
+
+``lines``
+    metric neighbours on a grid of at least three cells per axis: work comes in units of
+    :data:`~flocking.backends.cells.SEGMENT` columns of a line of cells, which threads take
+    from an atomic counter; a unit gathers its candidates into one buffer
+    (:func:`flocking.backends.cells.gather_unit`: periodic images shifted as they are
+    copied; across a wall, shifted out of reach), sums every cell of the unit in four SIMD
+    lanes, then updates its particles in one loop.
+``search``
+    topological neighbours (:func:`flocking.rules.neighbours.knearest`), and metric ones
+    on a grid with fewer than three cells along some axis (each neighbouring cell visited
+    once, every pair by minimum image), over fixed blocks of slots.
+
+Sums. The four lanes of a reduction take candidate ``lo + 4g + l`` into lane ``l`` (a
+last, partial group of four is masked by multiplying by 0, never by branching) and are
+added in a fixed order: independent chains that LLVM's SLP vectoriser packs into SIMD
+registers without reordering any addition, so the result is fixed by this source (never
+``fastmath``: its reassociation made freshly compiled and cached kernels round
+differently). Without pair weights the sum includes the particle itself and goes to the
+update as it is; with them (a coupling, nematic signs, a vision cone) each pair
+is weighed by :func:`flocking.rules.physics.neighbour`, the particle itself is taken out,
+and its own heading goes back with weight 1.
+
+Determinism. Work units are fixed by the model and a particle's new heading depends only
+on the sorted arrays and on counter-based random numbers; each unit's moment sums are
+added in slot order and the units in order, so no result depends on the number of
+threads. Parameters travel as one record (:data:`~flocking.backends.features.STEP`) and
+the extensions' :class:`~flocking.backends.features.Tables`.
+"""
+
+from __future__ import annotations
+
+import functools
+import types
+
+import numba
+import numpy as np
+
+from ..rules import compile as compile_rules
+from . import cells
+from .cells import ALL, U1
+from .features import Features
+
+R = compile_rules("cpu")
+
+
+# -- the plain model's neighbour sums -----------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def term_2d(buf, j, last, xi, yi, r2):
+    """Candidate ``j``'s heading and 1 if ``j <= last`` and it is within ``R`` of
+    ``(xi, yi)``, else zeros (multiplied by 0 or 1, not branched on)."""
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    w = 1.0 if (dx * dx + dy * dy < r2) & (j <= last) else 0.0
+    return buf[2, j] * w, buf[3, j] * w, w
+
+
+@numba.njit(cache=True, inline="always")
+def term_3d(buf, j, last, xi, yi, zi, r2):
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    dz = buf[2, j] - zi
+    w = 1.0 if (dx * dx + dy * dy + dz * dz < r2) & (j <= last) else 0.0
+    return buf[3, j] * w, buf[4, j] * w, buf[5, j] * w, w
+
+
+@numba.njit(cache=True)
+def reduce_2d(buf, ranges, x, y, i0, i1, r2, out, o):
+    """For slots ``i0..i1``: the sum of the headings and the count of the candidates in
+    ``ranges`` of the buffer within ``R`` (the particle itself included), into
+    ``out[:, o + i - i0]``."""
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        a0 = a1 = a2 = a3 = 0.0
+        b0 = b1 = b2 = b3 = 0.0
+        n0 = n1 = n2 = n3 = 0.0
+        for r in range(ranges.shape[0]):
+            lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
+            m4 = hi - (hi - lo) % np.uint64(4)
+            for j in range(lo, hi, np.uint64(4)):
+                last = ALL if j < m4 else hi - U1
+                p0, q0, w0 = term_2d(buf, j, last, xi, yi, r2)
+                p1, q1, w1 = term_2d(buf, j + U1, last, xi, yi, r2)
+                p2, q2, w2 = term_2d(buf, j + np.uint64(2), last, xi, yi, r2)
+                p3, q3, w3 = term_2d(buf, j + np.uint64(3), last, xi, yi, r2)
+                a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+                b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+                n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
+        out[0, o + i - i0] = (a0 + a1) + (a2 + a3)
+        out[1, o + i - i0] = (b0 + b1) + (b2 + b3)
+        out[2, o + i - i0] = (n0 + n1) + (n2 + n3)
+
+
+@numba.njit(cache=True)
+def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
+    """As :func:`reduce_2d`, in 3D."""
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        zi = z[i]
+        a0 = a1 = a2 = a3 = 0.0
+        b0 = b1 = b2 = b3 = 0.0
+        c0 = c1 = c2 = c3 = 0.0
+        n0 = n1 = n2 = n3 = 0.0
+        for r in range(ranges.shape[0]):
+            lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
+            m4 = hi - (hi - lo) % np.uint64(4)
+            for j in range(lo, hi, np.uint64(4)):
+                last = ALL if j < m4 else hi - U1
+                p0, q0, r0, w0 = term_3d(buf, j, last, xi, yi, zi, r2)
+                p1, q1, r1, w1 = term_3d(buf, j + U1, last, xi, yi, zi, r2)
+                p2, q2, r2_, w2 = term_3d(buf, j + np.uint64(2), last, xi, yi, zi, r2)
+                p3, q3, r3, w3 = term_3d(buf, j + np.uint64(3), last, xi, yi, zi, r2)
+                a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+                b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+                c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
+                n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
+        out[0, o + i - i0] = (a0 + a1) + (a2 + a3)
+        out[1, o + i - i0] = (b0 + b1) + (b2 + b3)
+        out[2, o + i - i0] = (c0 + c1) + (c2 + c3)
+        out[3, o + i - i0] = (n0 + n1) + (n2 + n3)
+
+
+# -- weighted neighbour sums (pair weights) -------------------------------------------------
+# Flags (CPL, NEM, CONE) are the kernel's compile-time constants: these functions are
+# inlined into it, and what a flag leaves out is folded away.
+
+
+@numba.njit(cache=True, inline="always")
+def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE):
+    """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour`: it
+    counts within ``R`` and ``j <= last``; the coupling of the particle's species to the
+    candidate's is buffer row ``jr``. Returns its weighed heading (2) and the count."""
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    d2 = dx * dx + dy * dy
+    t = R.neighbour(2, dx, dy, 0.0, d2, (d2 < r2) & (j <= last), ux, uy, 0.0, buf[2, j], buf[3, j], 0.0,
+                    buf[jr, j] if CPL else 1.0, NEM, CONE, cone)
+    return t[0], t[1], t[3]
+
+
+@numba.njit(cache=True, inline="always")
+def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM, CONE):
+    """:func:`pair_2d` in 3D: weighed heading (3), count."""
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    dz = buf[2, j] - zi
+    d2 = dx * dx + dy * dy + dz * dz
+    return R.neighbour(3, dx, dy, dz, d2, (d2 < r2) & (j <= last), ux, uy, uz, buf[3, j], buf[4, j], buf[5, j],
+                       buf[jr, j] if CPL else 1.0, NEM, CONE, cone)
+
+
+@numba.njit(cache=True, inline="always")
+def plus(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3])
+
+
+@numba.njit(cache=True, inline="always")
+def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, out, o, CPL, NEM, CONE):
+    """As :func:`reduce_2d` (the particle itself included, four lanes), each candidate
+    weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count."""
+    zero = (0.0, 0.0, 0.0)
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        ux = hx[i]
+        uy = hy[i]
+        jr = np.uint64(4 + int(tag[i])) if CPL else np.uint64(0)
+        s0 = s1 = s2 = s3 = zero
+        for r in range(ranges.shape[0]):
+            lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
+            m4 = hi - (hi - lo) % np.uint64(4)
+            for j in range(lo, hi, np.uint64(4)):
+                last = ALL if j < m4 else hi - U1
+                p0, q0, n0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE)
+                p1, q1, n1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE)
+                p2, q2, n2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE)
+                p3, q3, n3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE)
+                s0 = (s0[0] + p0, s0[1] + q0, s0[2] + n0)
+                s1 = (s1[0] + p1, s1[1] + q1, s1[2] + n1)
+                s2 = (s2[0] + p2, s2[1] + q2, s2[2] + n2)
+                s3 = (s3[0] + p3, s3[1] + q3, s3[2] + n3)
+        for a in range(3):
+            out[a, o + i - i0] = (s0[a] + s1[a]) + (s2[a] + s3[a])
+
+
+@numba.njit(cache=True, inline="always")
+def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, out, o, CPL, NEM, CONE):
+    """:func:`wreduce_2d` in 3D; rows: heading sum (3), count."""
+    zero = (0.0, 0.0, 0.0, 0.0)
+    for i in range(i0, i1):
+        xi = x[i]
+        yi = y[i]
+        zi = z[i]
+        ux = hx[i]
+        uy = hy[i]
+        uz = hz[i]
+        jr = np.uint64(6 + int(tag[i])) if CPL else np.uint64(0)
+        s0 = s1 = s2 = s3 = zero
+        for r in range(ranges.shape[0]):
+            lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
+            m4 = hi - (hi - lo) % np.uint64(4)
+            for j in range(lo, hi, np.uint64(4)):
+                last = ALL if j < m4 else hi - U1
+                s0 = plus(s0, pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM, CONE))
+                s1 = plus(s1, pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM, CONE))
+                s2 = plus(s2, pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM,
+                                      CONE))
+                s3 = plus(s3, pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM,
+                                      CONE))
+        for a in range(4):
+            out[a, o + i - i0] = (s0[a] + s1[a]) + (s2[a] + s3[a])
+
+
+# -- the sums of the search kernel --------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, CPL, NEM, CONE):
+    """Neighbour candidate ``j`` of slot ``i`` at ``r = (dx, dy, dz)`` by
+    :func:`flocking.rules.physics.neighbour` (``si``: the species of ``i``)."""
+    d = pos.shape[0]
+    coupling = tb.coupling[si, R.species_of(ids[j], tb.bounds)] if CPL else 1.0
+    return R.neighbour(d, dx, dy, dz, d2, inside, head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, head[0, j],
+                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, CONE, tb.cone[0])
+
+
+@numba.njit(cache=True, inline="always")
+def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM, CONE, WEIGHTED):
+    """Slot ``i``'s sums over the cells around its own cell ``c``, each cell once, every
+    pair by minimum image, none across a wall: ``(S (3), count)``; ``S`` and the count
+    include the particle itself unless ``WEIGHTED``."""
+    d = pos.shape[0]
+    o0, n0 = cells.axis_cells(c % nc[0], nc[0])
+    o1, n1 = cells.axis_cells((c // nc[0]) % nc[1], nc[1])
+    o2, n2 = 0, 1
+    if d == 3:
+        o2, n2 = cells.axis_cells(c // (nc[0] * nc[1]), nc[2])
+    s = (0.0, 0.0, 0.0, 0.0)
+    for k2 in range(n2):
+        g2 = o2 + k2
+        if d == 3:
+            if EXT and tb.walls[2] != 0 and (g2 < 0 or g2 >= nc[2]):
+                continue
+            g2 %= nc[2]
+        for k1 in range(n1):
+            g1 = o1 + k1
+            if EXT and tb.walls[1] != 0 and (g1 < 0 or g1 >= nc[1]):
+                continue
+            g1 %= nc[1]
+            for k0 in range(n0):
+                g0 = o0 + k0
+                if EXT and tb.walls[0] != 0 and (g0 < 0 or g0 >= nc[0]):
+                    continue
+                g0 %= nc[0]
+                cell = (g2 * nc[1] + g1) * nc[0] + g0
+                for j in range(start[cell], start[cell + 1]):
+                    if WEIGHTED and j == i:
+                        continue
+                    dx = R.minimum_image(pos[0, j] - pos[0, i], box[0], tb.half[0])
+                    dy = R.minimum_image(pos[1, j] - pos[1, i], box[1], tb.half[1])
+                    d2 = dx * dx + dy * dy
+                    dz = 0.0
+                    if d == 3:
+                        dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
+                        d2 += dz * dz
+                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, CPL, NEM, CONE)
+                    if t[3] != 0.0:  # only what counts is added, as the reference adds it
+                        s = plus(s, t)
+    if WEIGHTED:  # the count includes the particle itself
+        s = (s[0], s[1], s[2], s[3] + 1.0)
+    return s
+
+
+@numba.njit(cache=True, inline="always")
+def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CPL, NEM, CONE, WEIGHTED):
+    """As :func:`metric_sums`, over the ``k`` nearest others (in rank order, nearest
+    first; the particle itself first unless ``WEIGHTED``)."""
+    d = pos.shape[0]
+    nc2 = nc[2] if d == 3 else 1
+    l2 = box[2] if d == 3 else 1.0
+    h2 = tb.half[2] if d == 3 else np.inf
+    c0, c1, c2 = c % nc[0], (c // nc[0]) % nc[1], c // (nc[0] * nc[1]) if d == 3 else 0
+    found = R.knearest(i, c0, c1, c2, 0, pos, head, ids, start, nc[0], nc[1], nc2, box[0], box[1], l2, tb.half[0],
+                       tb.half[1], h2, d, k, CONE, tb.cone[0], bd, bi, bs)
+    s = (0.0, 0.0, 0.0, 0.0)
+    if not WEIGHTED:
+        s = (head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, 0.0)
+    for q in range(found):
+        s = plus(s, pair_terms(i, bs[q], 0.0, 0.0, 0.0, bd[q], True, pos, head, ids, tb, si, CPL, NEM, False))
+    return (s[0], s[1], s[2], float(found + 1))
+
+
+# -- one particle's step ------------------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def remember(ring, slot, pid, s, d):
+    """The delay ring's row of particle ``pid`` holds the sums of ``delay`` steps ago (the
+    others' heading sum and ``1 +`` their count): return them in :func:`metric_sums`'
+    layout and store today's ``s``."""
+    old = (ring[slot, pid, 0], ring[slot, pid, 1], ring[slot, pid, 2] if d == 3 else 0.0, ring[slot, pid, d])
+    ring[slot, pid, 0] = s[0]
+    ring[slot, pid, 1] = s[1]
+    if d == 3:
+        ring[slot, pid, 2] = s[2]
+    ring[slot, pid, d] = s[3]
+    return old
+
+
+@numba.njit(cache=True, inline="always")
+def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed, params, nc, inv, box, tb,
+            EXT, WEIGHTED):
+    """Slot ``i``'s new heading and position into ``new_*[:, i]`` and its new cell into
+    ``cell[i]``, from its sums ``s`` (:func:`metric_sums`' layout: with ``WEIGHTED``, the
+    others' weighed headings, else the sum with itself; ``params``: the step's record);
+    returns the new heading (``wz`` is 0 in 2D). In the order of docs/model.md: the delay,
+    the update (field, noise, alignment, chirality), the move, the walls, the obstacles."""
+    d, n = pos.shape
+    p = params[0]
+    pid = ids[i]
+    ux, uy = head[0, i], head[1, i]
+    uz = head[2, i] if d == 3 else 0.0
+    if p.delay > 0:
+        # ring rows are read by particle id, in no particular order: ask for the row a few
+        # particles ahead so that its cache miss overlaps work
+        cells.prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
+        if not WEIGHTED:  # the ring holds the others' sum
+            s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0, s[3])
+        s = remember(ring, slot, pid, s, d)
+        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3])
+    elif WEIGHTED:
+        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3])
+    sx, sy, sz, total = s[0], s[1], s[2], s[3]
+    vectorial = p.vectorial != 0
+    if EXT:
+        si = R.species_of(pid, tb.bounds)
+        eta, epsilon, turn, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 2], tb.species[si, 3]
+    else:
+        eta, epsilon, turn, h = p.eta, p.epsilon, 0.0, 0.0
+    ds = (spd[i] if spd.shape[0] == n else spd[0]) * p.dt
+    if d == 2:
+        wx, wy = R.update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step, pid, h, tb.field[0],
+                             tb.field[1], turn)
+        wz = 0.0
+    else:
+        wx, wy, wz = R.update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step, pid, h,
+                                 tb.field[0], tb.field[1], tb.field[2])
+    if p.backward != 0:
+        mx, my, mz = wx, wy, wz
+    else:
+        mx, my, mz = ux, uy, uz
+    if not EXT:
+        new_pos[0, i] = R.wrap(pos[0, i] + ds * mx, box[0])
+        new_pos[1, i] = R.wrap(pos[1, i] + ds * my, box[1])
+        if d == 3:
+            new_pos[2, i] = R.wrap(pos[2, i] + ds * mz, box[2])
+    else:
+        x, wx = R.fold(pos[0, i] + ds * mx, wx, box[0], tb.walls[0] != 0)
+        y, wy = R.fold(pos[1, i] + ds * my, wy, box[1], tb.walls[1] != 0)
+        z = 0.0
+        if d == 3:
+            z, wz = R.fold(pos[2, i] + ds * mz, wz, box[2], tb.walls[2] != 0)
+        for o in range(tb.obstacles.shape[0]):
+            ob = tb.obstacles[o]
+            if d == 2:
+                x, y, wx, wy = R.push_out_2d(x, y, wx, wy, ob[0], ob[1], ob[2], box[0], box[1], tb.half[0],
+                                             tb.half[1], tb.walls[0] != 0, tb.walls[1] != 0)
+            else:
+                x, y, z, wx, wy, wz = R.push_out_3d(x, y, z, wx, wy, wz, ob[0], ob[1], ob[2], ob[3], box[0], box[1],
+                                                    box[2], tb.half[0], tb.half[1], tb.half[2], tb.walls[0] != 0,
+                                                    tb.walls[1] != 0, tb.walls[2] != 0)
+        new_pos[0, i], new_pos[1, i] = x, y
+        if d == 3:
+            new_pos[2, i] = z
+    new_head[0, i], new_head[1, i] = wx, wy
+    if d == 3:
+        new_head[2, i] = wz
+    cell[i] = cells.cell_of(new_pos, i, nc, inv)
+    return wx, wy, wz
+
+
+@numba.njit(cache=True, inline="always")
+def add_moments(acc, wx, wy, wz, pid, bounds, d, NEM):
+    """Slot's new heading into the moment sums ``acc``: its species' ``sum u``, then the
+    nematic products (:mod:`flocking.observables`)."""
+    o = R.species_of(pid, bounds) * d
+    acc[o] += wx
+    acc[o + 1] += wy
+    if d == 3:
+        acc[o + 2] += wz
+    if NEM:
+        o = (bounds.shape[0] - 1) * d
+        if d == 2:
+            a, b = R.nematic_2d(wx, wy)
+            acc[o] += a
+            acc[o + 1] += b
+        else:
+            m = R.nematic_3d(wx, wy, wz)
+            for e in range(6):
+                acc[o + e] += m[e]
+
+
+# -- the kernels --------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=None)
+def build(features: Features) -> types.SimpleNamespace:
+    """The step kernels for ``features``: ``lines`` and ``search``, each called as
+    ``kernel(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step,
+    seed, params, partial, threads, tables)``: one step from the sorted arrays into
+    ``new_*`` (same slots), each slot's new cell into ``cell``, unit ``u``'s moment sums
+    into ``partial[u]``; ``params`` is a :data:`~flocking.backends.features.STEP` record
+    (an array of one), ``tables`` the model's :class:`~flocking.backends.features.Tables`;
+    ``threads`` only splits the work. Units of work: :func:`flocking.backends.cells.work_units`
+    (mode 0 for ``lines``, 1 for ``search``)."""
+    EXT, CPL, NEM, CONE = features
+    WEIGHTED = features.weighted
+
+    @numba.njit(cache=True, parallel=True)
+    def lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
+              threads, tb):
+        d, n = pos.shape
+        r2 = params[0].r2
+        inv = nc / box
+        shifts = box * (1.0 + tb.walls) if EXT else box  # 2L across a wall: a wrapped copy is never within R
+        nx = nc[0]
+        nseg = (nx + cells.SEGMENT - 1) // cells.SEGMENT
+        nunits = cells.work_units(nc, n, 0)
+        nt = max(1, min(threads, nunits))
+        # per slot its species and its coupling from each species: a unit's buffer holds the
+        # latter as rows, so a weighed sum reads one row instead of a look-up per pair
+        tag = np.empty(n if CPL else 0)
+        cols = np.empty((tb.coupling.shape[0] if CPL else 0, n))
+        if CPL:
+            for i in numba.prange(n):
+                s = R.species_of(ids[i], tb.bounds)
+                tag[i] = s
+                for a in range(cols.shape[0]):
+                    cols[a, i] = tb.coupling[a, s]
+        counter = np.zeros(1, dtype=np.int64)
+        width = partial.shape[1]
+        for t in numba.prange(nt):
+            # views taken once per thread: a view in the hot loop costs an atomic refcount
+            x, y, z = pos[0], pos[1], pos[d - 1]
+            hx, hy, hz = head[0], head[1], head[d - 1]
+            buf = np.empty((2 * d + cols.shape[0], 4096))
+            rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
+            ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
+            out = np.empty((4, 16))
+            acc = np.zeros(width)
+            while True:
+                # units go to whichever thread is free: balanced when particles cluster or
+                # when another program holds a core; a unit's result never depends on who
+                u = cells.fetch_add(counter)
+                if u >= nunits:
+                    break
+                if CPL:
+                    line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, cols, start, nc,
+                                                                       shifts, buf, rows, out, d)
+                else:
+                    line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
+                                                                       shifts, buf, rows, out, d)
+                # first the sums of every particle of the segment, then the updates in one
+                # loop: its iterations are independent, so the processor overlaps their long
+                # chains of dependent operations (it cannot across the reductions)
+                for cx in range(c0, c1):
+                    c = line * nx + cx
+                    cells.candidate_ranges(cx, nx, start, rows, ranges)
+                    if not WEIGHTED and d == 2:
+                        reduce_2d(buf, ranges, x, y, start[c], start[c + 1], r2, out, start[c] - s0)
+                    elif not WEIGHTED:
+                        reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
+                    elif d == 2:
+                        wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0], out,
+                                   start[c] - s0, CPL, NEM, CONE)
+                    else:
+                        wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0], out,
+                                   start[c] - s0, CPL, NEM, CONE)
+                px = 0.0
+                py = 0.0
+                pz = 0.0
+                if EXT:
+                    acc[:] = 0.0
+                # unsigned slots: no negative-index wraparound on every access
+                for i in range(np.uint64(max(s0, 0)), np.uint64(max(s1, 0))):
+                    q = np.int64(i) - s0
+                    sz = out[2, q] if d == 3 else 0.0
+                    s = (out[0, q], out[1, q], sz, out[d, q])
+                    if WEIGHTED:
+                        # the sums include the particle itself, with its own species'
+                        # coupling, in its cone, of its own sense: take it out
+                        w = tb.coupling[int(tag[i]), int(tag[i])] if CPL else 1.0
+                        s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0, s[3])
+                    wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
+                                         params, nc, inv, box, tb, EXT, WEIGHTED)
+                    if EXT:
+                        add_moments(acc, wx, wy, wz, ids[i], tb.bounds, d, NEM)
+                    else:
+                        px += wx
+                        py += wy
+                        pz += wz
+                if EXT:
+                    partial[u, :] = acc
+                else:
+                    partial[u, 0] = px
+                    partial[u, 1] = py
+                    partial[u, 2] = pz
+
+    @numba.njit(cache=True, parallel=True)
+    def search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
+               threads, tb):
+        d, n = pos.shape
+        k = params[0].k
+        r2 = params[0].r2
+        inv = nc / box
+        ncells = start.shape[0] - 1
+        nblocks = cells.work_units(nc, n, 1)
+        nt = max(1, min(threads, nblocks))
+        counter = np.zeros(1, dtype=np.int64)
+        width = partial.shape[1]
+        for t in numba.prange(nt):
+            bd = np.empty(max(k, 1))
+            bi = np.empty(max(k, 1), dtype=np.int64)
+            bs = np.empty(max(k, 1), dtype=np.int64)
+            acc = np.zeros(width)
+            while True:
+                b = cells.fetch_add(counter)
+                if b >= nblocks:
+                    break
+                s0 = b * cells.BLOCK
+                s1 = min(n, s0 + cells.BLOCK)
+                c = np.searchsorted(start, s0, side="right") - 1
+                px = 0.0
+                py = 0.0
+                pz = 0.0
+                if EXT:
+                    acc[:] = 0.0
+                while c < ncells and start[c] < s1:
+                    for i in range(max(start[c], s0), min(start[c + 1], s1)):
+                        si = R.species_of(ids[i], tb.bounds) if CPL else 0
+                        if k == 0:
+                            s = metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM, CONE,
+                                            WEIGHTED)
+                        else:
+                            s = nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CPL, NEM,
+                                             CONE, WEIGHTED)
+                        wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
+                                             params, nc, inv, box, tb, EXT, WEIGHTED)
+                        if EXT:
+                            add_moments(acc, wx, wy, wz, ids[i], tb.bounds, d, NEM)
+                        else:
+                            px += wx
+                            py += wy
+                            pz += wz
+                    c += 1
+                if EXT:
+                    partial[b, :] = acc
+                else:
+                    partial[b, 0] = px
+                    partial[b, 1] = py
+                    partial[b, 2] = pz
+
+    return types.SimpleNamespace(lines=lines, search=search, features=features)
+

@@ -1,0 +1,128 @@
+"""What a model switches on, and the tables of values its kernels read: one definition for
+the CPU and the CUDA backend.
+
+:class:`Features` is fixed at compile time: the kernels of
+:mod:`flocking.backends.cpu_kernels` and :mod:`flocking.backends.cuda_kernels` are built
+for one value of it, so an extension that is off is not in the code at all, and the plain
+model (``Features()``) runs the plain arithmetic. :func:`tables` gives the values a step
+reads (:class:`Tables`: walls, obstacles, species, coupling, field, vision), as
+named arrays.
+
+>>> from flocking import Model
+>>> features(Model(n=10, box=5.0)) == Features()
+True
+>>> features(Model(n=10, box=5.0, vision=2.0, chirality=0.1))
+Features(extended=True, coupling=False, nematic=False, cone=True)
+>>> tables(Model(n=10, box=5.0, vision=2.0)).cone.round(6).tolist()  # cos(2) |cos(2)|
+[-0.173178]
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+
+import numpy as np
+
+from ..model import Model
+
+
+class Features(typing.NamedTuple):
+    """What the kernels compile in. ``extended``: any extension at all (walls, obstacles,
+    per-species values, chirality, a field are then read from :class:`Tables`); the rest
+    weigh each neighbour pair: a ``coupling`` matrix, ``nematic`` alignment, a vision
+    ``cone``."""
+
+    extended: bool = False
+    coupling: bool = False
+    nematic: bool = False
+    cone: bool = False
+
+    @property
+    def weighted(self) -> bool:
+        """Whether a neighbour pair is weighed."""
+        return self.coupling or self.nematic or self.cone
+
+
+def ring_width(dim: int, features: Features) -> int:
+    """Values a particle keeps in the delay ring (the CPU's and the GPU's layout): the
+    others' heading sum and ``1 +`` their count.
+
+    >>> ring_width(2, Features()), ring_width(3, Features(extended=True))
+    (3, 4)
+    """
+    return dim + 1
+
+
+def features(model: Model) -> Features:
+    """The :class:`Features` of ``model``."""
+    on = model.extensions
+    return Features(extended=bool(on), coupling="coupling" in on, nematic="nematic alignment" in on,
+                    cone="vision" in on)
+
+
+class Tables(typing.NamedTuple):
+    """The values of a model's extensions, as the kernels read them (float64; the CUDA
+    backend converts them to its precision).
+
+    - ``walls`` (d, int64): 1 along an axis closed by walls;
+    - ``half`` (d): how far a displacement reaches before the minimum image folds it,
+      ``L/2``, or infinite along walls;
+    - ``obstacles`` (M, d + 1): centre, radius;
+    - ``bounds`` (S + 1, int64): the first id of each species, then ``N``;
+    - ``species`` (S, 4): per species the noise, the alignment, the turn ``omega dt``
+      and the field strength;
+    - ``coupling`` (S, S): the weight of species ``b`` in the sum of species ``a``;
+    - ``field`` (3): the field's unit direction (zeros without one);
+    - ``cone`` (1): ``cos |cos|`` of the vision half-angle (-4 without a cone: every
+      neighbour is seen, see :func:`flocking.rules.physics.sees`).
+    """
+
+    walls: np.ndarray
+    half: np.ndarray
+    obstacles: np.ndarray
+    bounds: np.ndarray
+    species: np.ndarray
+    coupling: np.ndarray
+    field: np.ndarray
+    cone: np.ndarray
+
+
+def tables(model: Model) -> Tables:
+    """The :class:`Tables` of ``model``."""
+    d = model.dim
+    box = np.asarray(model.box, dtype=np.float64)
+    walls = np.asarray(model.walls, dtype=np.int64)
+    obstacles = np.array([[*o.centre, o.radius] for o in model.obstacles], dtype=np.float64).reshape(-1, d + 1)
+    species = np.array([model.species_values(name) for name in ("noise", "alignment", "chirality", "field_strength")],
+                       dtype=np.float64).T.copy()
+    species[:, 2] *= model.dt
+    count = len(model.species_counts)
+    coupling = np.ones((count, count)) if model.coupling is None else np.array(model.coupling, dtype=np.float64)
+    field = np.zeros(3)
+    if model.field is not None:
+        field[:d] = model.field_direction
+    cos_v = math.cos(model.vision)
+    cone = np.array([cos_v * abs(cos_v) if model.vision < math.pi else -4.0])
+    return Tables(walls=walls, half=np.where(walls != 0, np.inf, box / 2.0), obstacles=obstacles,
+                  bounds=np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64),
+                  species=species, coupling=coupling, field=field, cone=cone)
+
+
+#: The scalar parameters of a step, as the CPU kernels read them: one record, by name.
+STEP = np.dtype([("r2", np.float64), ("eta", np.float64), ("epsilon", np.float64), ("dt", np.float64),
+                 ("k", np.int64), ("delay", np.int64), ("vectorial", np.int64), ("backward", np.int64)], align=True)
+
+
+def step_record(model: Model) -> np.ndarray:
+    """The :data:`STEP` record of ``model`` (an array of one; ``k`` is 0 for metric
+    neighbours).
+
+    >>> step_record(Model(n=10, box=5.0, delay=3))[0]["delay"]
+    np.int64(3)
+    """
+    record = np.zeros(1, dtype=STEP)
+    record[0] = (model.radius**2, model.noise, model.alignment, model.dt,
+                 model.k if model.neighbours == "topological" else 0, model.delay,
+                 model.noise_type == "vectorial", model.update == "backward")
+    return record

@@ -1,0 +1,73 @@
+"""The CUDA kernels compile for a real GPU (sm_90 PTX) without one.
+
+numba's CUDA simulator (tests/test_cuda.py) runs the kernels as Python, so it cannot see a
+kernel that a GPU's compiler would refuse (a type numba-cuda cannot lower, a Python
+feature a device function lacks). Here every kernel goes through numba's CUDA compiler
+and NVVM to PTX, for the plain model and for one with every extension compiled in; the
+test skips where NVVM (the CUDA toolkit's libnvvm) is not installed.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from gpu_marks import SIMULATOR
+
+SCRIPT = r"""
+import sys, types
+import numba.cuda.dispatcher as dispatcher
+from numba import cuda
+# device functions ask the current device for its compute capability: there is none
+dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
+from flocking.backends import cuda_kernels
+from flocking.backends.cuda_sort import Launch
+from flocking.backends.features import Features
+precision, dim, k, extended = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
+features = Features(True, True, True, True) if extended else Features()
+species = 2 if extended else 1
+try:
+    cuda.compile_ptx(lambda a: None, "void(float64[:])", cc=(9, 0))
+except Exception as err:
+    print("NO-NVVM", type(err).__name__, err)
+    sys.exit(0)
+kernels = cuda_kernels.build(precision, dim, k, Launch(256, 8, 8), features, species)
+for name, signature in cuda_kernels.signatures(precision, dim, species).items():
+    kernel = getattr(kernels.sort if name in ("digits", "scatter") else kernels, name)
+    ptx, _ = cuda.compile_ptx(kernel.py_func, signature, cc=(9, 0))
+    assert ".entry" in ptx, name
+    if precision == "float32" and name == "step":
+        # float32 kernels do their per-particle arithmetic in float32: the only doubles
+        # are the random numbers' 53-bit fractions, converted once each
+        assert ptx.count("cvt.rn.f32.f64") >= 1 and "sqrt.rn.f64" not in ptx, "a float64 square root"
+print("COMPILED")
+"""
+
+CASES = [("float32", 2, 0, False), ("float64", 3, 7, True)]
+MORE = [(p, d, k, e) for p in ("float64", "float32") for d in (2, 3) for k in (0, 7) for e in (False, True)
+        if (p, d, k, e) not in CASES]
+
+
+def compile_case(precision, dim, k, extended):
+    if SIMULATOR:
+        pytest.skip("the CUDA simulator is on in this process")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    out = subprocess.run([sys.executable, "-c", SCRIPT, precision, str(dim), str(k), "1" if extended else "0"],
+                         capture_output=True, text=True, env=env, timeout=900)
+    if "NO-NVVM" in out.stdout:
+        pytest.skip(f"no NVVM here to compile CUDA kernels ({out.stdout.strip()[8:][:120]})")
+    assert out.returncode == 0 and "COMPILED" in out.stdout, out.stdout[-2000:] + out.stderr[-4000:]
+
+
+@pytest.mark.parametrize("precision, dim, k, extended", CASES)
+def test_kernels_compile_for_sm90(precision, dim, k, extended):
+    compile_case(precision, dim, k, extended)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("precision, dim, k, extended", MORE)
+def test_every_kernel_variant_compiles_for_sm90(precision, dim, k, extended):
+    compile_case(precision, dim, k, extended)
