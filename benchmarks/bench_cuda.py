@@ -92,13 +92,13 @@ def run_case(name: str, args) -> float:
         return delayed / plain
     if name == "extensions":
         # walls on y, an obstacle, two species that anti-align, a vision cone, nematic
-        # alignment, chirality and a field: every branch of the extended kernels
+        # alignment, cohesion, chirality and a field: every branch of the extended kernels
         plain = flocking.Model(n=big, density=2.0, noise=1.0, seed=1)
         side = plain.box[0]
         every = plain.replace(boundary="periodic,wall", obstacles=[{"centre": [side / 2, side / 2], "radius": side / 8}],
                               species=[{"fraction": 0.5}, {"fraction": 0.5, "noise": 2.0}],
                               coupling=[[1.0, -1.0], [-1.0, 1.0]], vision=2.1, alignment_rule="nematic",
-                              chirality=0.1, field=[1.0, 0.0], field_strength=0.2)
+                              chirality=0.1, field=[1.0, 0.0], field_strength=0.2, cohesion=0.5)
         base, extended = single(plain, "float32", args), single(every, "float32", args)
         print(f"  every extension: {extended:.3e}, none: {base:.3e}")
         return extended / base
@@ -120,9 +120,9 @@ def ptx_report() -> None:
     from flocking.backends.features import Features
 
     # the plain kernels, and those of a model with every extension (two species with a
-    # coupling, nematic alignment, a vision cone; walls, obstacles, field and
+    # coupling, nematic alignment, a vision cone, cohesion; walls, obstacles, field and
     # chirality are data)
-    every = Features(extended=True, coupling=True, nematic=True, cone=True)
+    every = Features(extended=True, coupling=True, nematic=True, cone=True, cohesion=True)
     with tempfile.TemporaryDirectory() as folder:
         for precision, dim, k, (features, species) in [(p, d, k, e) for e in ((Features(), 1), (every, 2))
                                                       for p in ("float64", "float32") for d in (2, 3) for k in (0, 7)]:

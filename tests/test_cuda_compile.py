@@ -27,7 +27,7 @@ from flocking.backends import cuda_kernels
 from flocking.backends.cuda_sort import Launch
 from flocking.backends.features import Features
 precision, dim, k, extended = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
-features = Features(True, True, True, True) if extended else Features()
+features = Features(True, True, True, True, True) if extended else Features()
 species = 2 if extended else 1
 try:
     cuda.compile_ptx(lambda a: None, "void(float64[:])", cc=(9, 0))

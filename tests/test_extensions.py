@@ -48,6 +48,16 @@ EXTENSIONS = {
     "topological-delay-nematic": dict(neighbours="topological", k=3, delay=1, alignment_rule="nematic",
                                       obstacles=[{"centre": [3.0, 3.0], "radius": 1.2}]),
     "box-below-3R": dict(box=2.6, boundary="periodic,wall", vision=2.5, alignment_rule="nematic"),
+    # at this density (300 in 6 x 6) about one neighbour in twelve is inside the hard core:
+    # both branches of cohesion are taken every step
+    "cohesion": dict(cohesion=1.5),
+    "cohesion-topological-delay": dict(cohesion=2.0, cohesion_radii=[0.1, 0.5, 0.9], neighbours="topological", k=5,
+                                       delay=2, vision=2.5, boundary="wall", noise_type="vectorial", noise=0.4),
+    "cohesion-everything": dict(cohesion=0.7, boundary="periodic,wall",
+                                obstacles=[{"centre": [3.0, 3.0], "radius": 1.0}], species=[{"fraction": 0.5}, {"fraction": 0.5, "noise": 0.4}],
+                                coupling=[[1.0, -1.0], [0.5, 1.0]], vision=2.2, alignment_rule="nematic",
+                                chirality=0.1, field=[1.0, 0.0], field_strength=0.3, delay=1),
+    "cohesion-box-below-3R": dict(box=2.6, cohesion=1.0, boundary="wall"),
 }
 
 

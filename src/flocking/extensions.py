@@ -212,6 +212,32 @@ def parse_field(value: Any, dim: int) -> tuple[float, ...] | None:
     return g
 
 
+#: The default radii ``(r_c, r_e, r_a)`` of cohesion, in units of the interaction radius
+#: ``R``: Gregoire and Chate's 0.2, 0.5 and 0.8 (PRL 92, 025702, 2004).
+COHESION_RADII = (0.2, 0.5, 0.8)
+
+
+def parse_cohesion_radii(value: Any, radius: float) -> tuple[float, float, float]:
+    """The radii ``(r_c, r_e, r_a)`` of cohesion: the hard core, the distance of
+    equilibrium and the start of full attraction, with ``0 <= r_c < r_e < r_a``; from a
+    list or ``"0.2,0.5,0.8"``, or (``None``) :data:`COHESION_RADII` times ``radius``.
+
+    >>> parse_cohesion_radii(None, 2.0)
+    (0.4, 1.0, 1.6)
+    """
+    if value is None:
+        return tuple(f * radius for f in COHESION_RADII)
+    allowed = "three lengths r_c, r_e, r_a with 0 <= r_c < r_e < r_a, such as 0.2,0.5,0.8"
+    value = comma_numbers("cohesion_radii", value, allowed)
+    items = _sequence("cohesion_radii", value, "[0.2, 0.5, 0.8]")
+    if len(items) != 3:
+        fail("cohesion_radii", allowed, value)
+    rc, re, ra = (real("cohesion_radii", x, low=0.0, allowed=allowed) for x in items)
+    if not (rc < re < ra):
+        fail("cohesion_radii", allowed, value)
+    return rc, re, ra
+
+
 def unit_vector(v: tuple[float, ...]) -> tuple[float, ...]:
     """``v / |v|`` for any finite, non-zero ``v``, without overflow or underflow: the
     components are first divided by the largest magnitude (exact for a power of two,

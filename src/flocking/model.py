@@ -132,6 +132,8 @@ class Model:
     chirality: float = 0.0
     field: Any = None
     field_strength: float = 0.0
+    cohesion: float = 0.0
+    cohesion_radii: Any = None
     noise_scale: dataclasses.InitVar[str] = "radians"
 
     def __post_init__(self, noise_scale: str) -> None:
@@ -194,6 +196,9 @@ class Model:
         put("chirality", self._chirality("chirality", self.chirality))
         put("field", ext.parse_field(self.field, dim))
         put("field_strength", _field_strength("field_strength", self.field_strength))
+        put("cohesion", real("cohesion", self.cohesion, low=0.0, high=ext.MAX_WEIGHT))
+        if self.cohesion or self.cohesion_radii is not None:
+            put("cohesion_radii", ext.parse_cohesion_radii(self.cohesion_radii, self.radius))
         if self.field is None and any(h > 0 for h in self.species_values("field_strength")):
             raise ParameterError("field: must be given (a direction such as 1,0) when a field_strength is above 0")
 
@@ -318,7 +323,7 @@ class Model:
             getattr(sp, name) is not None for sp in self.species for name in ("noise", "alignment"))
         on = {"walls": any(self.walls), "obstacles": bool(self.obstacles), "species": species,
               "coupling": self.coupling is not None, "vision": self.vision != math.pi,
-              "nematic alignment": self.alignment_rule == "nematic",
+              "nematic alignment": self.alignment_rule == "nematic", "cohesion": self.cohesion > 0.0,
               "chirality": any(self.species_values("chirality")), "field": any(self.species_values("field_strength"))}
         return tuple(name for name, value in on.items() if value)
 
@@ -391,6 +396,8 @@ class Model:
             text += f", {self.alignment_rule}"
         if self.chirality:
             text += f", chirality {self.chirality:g}"
+        if self.cohesion:
+            text += f", cohesion {self.cohesion:g} (r_c, r_e, r_a = {', '.join(f'{r:g}' for r in self.cohesion_radii)})"
         if self.field_strength or any(self.species_values("field_strength")):
             text += f", field {tuple(round(g, 4) for g in self.field_direction)} strength {self.field_strength:g}"
         return text
@@ -401,7 +408,7 @@ MODEL_KEYS = tuple(f.name for f in dataclasses.fields(Model)) + ("noise_scale",)
 #: The extensions' parameters and their values when off (as :meth:`Model.to_dict` writes them).
 EXTENSION_DEFAULTS = {"boundary": "periodic", "obstacles": (), "species": (), "coupling": None,
                       "vision": math.pi, "alignment_rule": "polar", "chirality": 0.0, "field": None,
-                      "field_strength": 0.0}
+                      "field_strength": 0.0, "cohesion": 0.0, "cohesion_radii": None}
 
 
 # -- TOML ------------------------------------------------------------------------------

@@ -21,7 +21,8 @@ a run starts), whatever the number of threads. A checkpoint saves that order
 one that never stopped. No result depends on the number of threads.
 
 Delay. The sum of the neighbours' headings (without the particle itself) and ``1 +`` their
-count at step ``t`` is exactly what step ``t + tau`` needs: ``_ring[t % tau, id]`` holds it, indexed by particle id, and replaces a
+count at step ``t`` (with cohesion, also its pull and push) is exactly what step
+``t + tau`` needs: ``_ring[t % tau, id]`` holds it, indexed by particle id, and replaces a
 second neighbour search.
 
 >>> from flocking import Model, State
@@ -61,8 +62,10 @@ def kernel_name(model: Model) -> str:
     (metric neighbours, at least three cells a side) or ``search`` (topological
     neighbours, or a box under ``3R`` along some axis).
 
-    >>> kernel_name(Model(n=100, box=10.0)), kernel_name(Model(n=100, box=2.5)), kernel_name(Model(n=100, box=10.0, neighbours="topological"))
-    ('lines', 'search', 'search')
+    >>> kernel_name(Model(n=100, box=10.0)), kernel_name(Model(n=100, box=2.5))
+    ('lines', 'search')
+    >>> kernel_name(Model(n=100, box=10.0, neighbours="topological"))
+    'search'
     """
     if model.neighbours == "metric" and np.all(cells.cell_grid(model) >= 3):
         return "lines"
@@ -173,8 +176,8 @@ class CPUBackend:
 
     def neighbour_sums(self) -> np.ndarray:
         """Per particle id, the sums a delayed step remembers (:func:`cpu_kernels.remember`:
-        the neighbours' heading sum, the particle itself left out, and ``1 +`` their count)
-        for the current state."""
+        the neighbours' heading sum, the particle itself left out, and ``1 +`` their count;
+        with cohesion, the pull, the push and the core count) for the current state."""
         n = self._pos.shape[1]
         ring = np.zeros((1, n, self._ring.shape[2]))
         params = self._params.copy()

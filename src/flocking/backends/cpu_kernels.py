@@ -24,7 +24,7 @@ added in a fixed order: independent chains that LLVM's SLP vectoriser packs into
 registers without reordering any addition, so the result is fixed by this source (never
 ``fastmath``: its reassociation made freshly compiled and cached kernels round
 differently). Without pair weights the sum includes the particle itself and goes to the
-update as it is; with them (a coupling, nematic signs, a vision cone) each pair
+update as it is; with them (a coupling, nematic signs, a vision cone, cohesion) each pair
 is weighed by :func:`flocking.rules.physics.neighbour`, the particle itself is taken out,
 and its own heading goes back with weight 1.
 
@@ -131,45 +131,53 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
         out[3, o + i - i0] = (n0 + n1) + (n2 + n3)
 
 
-# -- weighted neighbour sums (pair weights) -------------------------------------------------
-# Flags (CPL, NEM, CONE) are the kernel's compile-time constants: these functions are
+# -- weighted neighbour sums (pair weights, cohesion) ---------------------------------------
+# Flags (CPL, NEM, CONE, COH) are the kernel's compile-time constants: these functions are
 # inlined into it, and what a flag leaves out is folded away.
 
 
 @numba.njit(cache=True, inline="always")
-def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE):
+def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE, COH):
     """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour`: it
     counts within ``R`` and ``j <= last``; the coupling of the particle's species to the
-    candidate's is buffer row ``jr``. Returns its weighed heading (2) and the count."""
+    candidate's is buffer row ``jr``. Returns heading (2), count, pull (2), push (2),
+    core count."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     d2 = dx * dx + dy * dy
     t = R.neighbour(2, dx, dy, 0.0, d2, (d2 < r2) & (j <= last), ux, uy, 0.0, buf[2, j], buf[3, j], 0.0,
-                    buf[jr, j] if CPL else 1.0, NEM, CONE, cone)
-    return t[0], t[1], t[3]
+                    buf[jr, j] if CPL else 1.0, NEM, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
+    return t[0], t[1], t[3], t[4], t[5], t[7], t[8], t[10]
 
 
 @numba.njit(cache=True, inline="always")
-def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM, CONE):
-    """:func:`pair_2d` in 3D: weighed heading (3), count."""
+def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE, COH):
+    """:func:`pair_2d` in 3D: heading (3), count, pull (3), push (3), core count."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi
     d2 = dx * dx + dy * dy + dz * dz
     return R.neighbour(3, dx, dy, dz, d2, (d2 < r2) & (j <= last), ux, uy, uz, buf[3, j], buf[4, j], buf[5, j],
-                       buf[jr, j] if CPL else 1.0, NEM, CONE, cone)
+                       buf[jr, j] if CPL else 1.0, NEM, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
 
 
 @numba.njit(cache=True, inline="always")
-def plus(a, b):
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3])
+def plus8(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5], a[6] + b[6], a[7] + b[7])
 
 
 @numba.njit(cache=True, inline="always")
-def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, out, o, CPL, NEM, CONE):
+def plus11(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5], a[6] + b[6], a[7] + b[7],
+            a[8] + b[8], a[9] + b[9], a[10] + b[10])
+
+
+@numba.njit(cache=True, inline="always")
+def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o, CPL, NEM, CONE, COH):
     """As :func:`reduce_2d` (the particle itself included, four lanes), each candidate
-    weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count."""
-    zero = (0.0, 0.0, 0.0)
+    weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count, and with
+    cohesion the pull (2), the push (2) and the core count."""
+    zero = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
@@ -182,22 +190,20 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, out, o, CPL, NE
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                p0, q0, n0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE)
-                p1, q1, n1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE)
-                p2, q2, n2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE)
-                p3, q3, n3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, cone, CPL, NEM, CONE)
-                s0 = (s0[0] + p0, s0[1] + q0, s0[2] + n0)
-                s1 = (s1[0] + p1, s1[1] + q1, s1[2] + n1)
-                s2 = (s2[0] + p2, s2[1] + q2, s2[2] + n2)
-                s3 = (s3[0] + p3, s3[1] + q3, s3[2] + n3)
-        for a in range(3):
+                s0 = plus8(s0, pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE, COH))
+                s1 = plus8(s1, pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE, COH))
+                s2 = plus8(s2, pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE,
+                                       COH))
+                s3 = plus8(s3, pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE,
+                                       COH))
+        for a in range(8 if COH else 3):
             out[a, o + i - i0] = (s0[a] + s1[a]) + (s2[a] + s3[a])
 
 
 @numba.njit(cache=True, inline="always")
-def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, out, o, CPL, NEM, CONE):
-    """:func:`wreduce_2d` in 3D; rows: heading sum (3), count."""
-    zero = (0.0, 0.0, 0.0, 0.0)
+def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out, o, CPL, NEM, CONE, COH):
+    """:func:`wreduce_2d` in 3D; rows: heading sum (3), count, pull (3), push (3), core count."""
+    zero = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
@@ -212,13 +218,14 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, out, o, 
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                s0 = plus(s0, pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM, CONE))
-                s1 = plus(s1, pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM, CONE))
-                s2 = plus(s2, pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM,
-                                      CONE))
-                s3 = plus(s3, pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, CPL, NEM,
-                                      CONE))
-        for a in range(4):
+                s0 = plus11(s0, pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE, COH))
+                s1 = plus11(s1, pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE,
+                                        COH))
+                s2 = plus11(s2, pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL,
+                                        NEM, CONE, COH))
+                s3 = plus11(s3, pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL,
+                                        NEM, CONE, COH))
+        for a in range(11 if COH else 4):
             out[a, o + i - i0] = (s0[a] + s1[a]) + (s2[a] + s3[a])
 
 
@@ -226,27 +233,36 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, out, o, 
 
 
 @numba.njit(cache=True, inline="always")
-def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, CPL, NEM, CONE):
+def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, CPL, NEM, CONE, COH):
     """Neighbour candidate ``j`` of slot ``i`` at ``r = (dx, dy, dz)`` by
     :func:`flocking.rules.physics.neighbour` (``si``: the species of ``i``)."""
     d = pos.shape[0]
+    coh = tb.cohesion
     coupling = tb.coupling[si, R.species_of(ids[j], tb.bounds)] if CPL else 1.0
     return R.neighbour(d, dx, dy, dz, d2, inside, head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, head[0, j],
-                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, CONE, tb.cone[0])
+                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, CONE, tb.cone[0], COH, coh[1],
+                       coh[2], coh[3], coh[4])
 
 
 @numba.njit(cache=True, inline="always")
-def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM, CONE, WEIGHTED):
+def plus_counted(s, t):
+    """``s + t`` in :func:`metric_sums`' layout, ``t`` as :func:`pair_terms` gives it."""
+    return (s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3], s[4] + t[4], s[5] + t[5], s[6] + t[6], s[7] + t[7],
+            s[8] + t[8], s[9] + t[9], s[10] + t[10])
+
+
+@numba.njit(cache=True, inline="always")
+def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM, CONE, COH, WEIGHTED):
     """Slot ``i``'s sums over the cells around its own cell ``c``, each cell once, every
-    pair by minimum image, none across a wall: ``(S (3), count)``; ``S`` and the count
-    include the particle itself unless ``WEIGHTED``."""
+    pair by minimum image, none across a wall: ``(S (3), count, pull (3), push (3), core
+    count)``; ``S`` and the count include the particle itself unless ``WEIGHTED``."""
     d = pos.shape[0]
     o0, n0 = cells.axis_cells(c % nc[0], nc[0])
     o1, n1 = cells.axis_cells((c // nc[0]) % nc[1], nc[1])
     o2, n2 = 0, 1
     if d == 3:
         o2, n2 = cells.axis_cells(c // (nc[0] * nc[1]), nc[2])
-    s = (0.0, 0.0, 0.0, 0.0)
+    s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for k2 in range(n2):
         g2 = o2 + k2
         if d == 3:
@@ -274,16 +290,16 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM,
                     if d == 3:
                         dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
                         d2 += dz * dz
-                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, CPL, NEM, CONE)
+                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, CPL, NEM, CONE, COH)
                     if t[3] != 0.0:  # only what counts is added, as the reference adds it
-                        s = plus(s, t)
+                        s = plus_counted(s, t)
     if WEIGHTED:  # the count includes the particle itself
-        s = (s[0], s[1], s[2], s[3] + 1.0)
+        s = (s[0], s[1], s[2], s[3] + 1.0, s[4], s[5], s[6], s[7], s[8], s[9], s[10])
     return s
 
 
 @numba.njit(cache=True, inline="always")
-def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CPL, NEM, CONE, WEIGHTED):
+def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CPL, NEM, CONE, COH, WEIGHTED):
     """As :func:`metric_sums`, over the ``k`` nearest others (in rank order, nearest
     first; the particle itself first unless ``WEIGHTED``)."""
     d = pos.shape[0]
@@ -293,39 +309,57 @@ def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CP
     c0, c1, c2 = c % nc[0], (c // nc[0]) % nc[1], c // (nc[0] * nc[1]) if d == 3 else 0
     found = R.knearest(i, c0, c1, c2, 0, pos, head, ids, start, nc[0], nc[1], nc2, box[0], box[1], l2, tb.half[0],
                        tb.half[1], h2, d, k, CONE, tb.cone[0], bd, bi, bs)
-    s = (0.0, 0.0, 0.0, 0.0)
+    s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     if not WEIGHTED:
-        s = (head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, 0.0)
+        s = (head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for q in range(found):
-        s = plus(s, pair_terms(i, bs[q], 0.0, 0.0, 0.0, bd[q], True, pos, head, ids, tb, si, CPL, NEM, False))
-    return (s[0], s[1], s[2], float(found + 1))
+        j = bs[q]
+        dx = dy = dz = 0.0
+        if COH:
+            dx = R.minimum_image(pos[0, j] - pos[0, i], box[0], tb.half[0])
+            dy = R.minimum_image(pos[1, j] - pos[1, i], box[1], tb.half[1])
+            if d == 3:
+                dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
+        s = plus_counted(s, pair_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si, CPL, NEM, False, COH))
+    return (s[0], s[1], s[2], float(found + 1), s[4], s[5], s[6], s[7], s[8], s[9], s[10])
 
 
 # -- one particle's step ------------------------------------------------------------------
 
 
 @numba.njit(cache=True, inline="always")
-def remember(ring, slot, pid, s, d):
+def remember(ring, slot, pid, s, d, COH):
     """The delay ring's row of particle ``pid`` holds the sums of ``delay`` steps ago (the
-    others' heading sum and ``1 +`` their count): return them in :func:`metric_sums`'
-    layout and store today's ``s``."""
+    others' heading sum, ``1 +`` their count, and with cohesion the pull, the push and the
+    core count): return them in :func:`metric_sums`' layout and store today's ``s``."""
     old = (ring[slot, pid, 0], ring[slot, pid, 1], ring[slot, pid, 2] if d == 3 else 0.0, ring[slot, pid, d])
     ring[slot, pid, 0] = s[0]
     ring[slot, pid, 1] = s[1]
     if d == 3:
         ring[slot, pid, 2] = s[2]
     ring[slot, pid, d] = s[3]
-    return old
+    if not COH:
+        return (old[0], old[1], old[2], old[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+    o = d + 1
+    extra = (ring[slot, pid, o], ring[slot, pid, o + 1], ring[slot, pid, o + 2] if d == 3 else 0.0,
+             ring[slot, pid, o + d], ring[slot, pid, o + d + 1], ring[slot, pid, o + d + 2] if d == 3 else 0.0,
+             ring[slot, pid, o + 2 * d])
+    for a in range(d):
+        ring[slot, pid, o + a] = s[4 + a]
+        ring[slot, pid, o + d + a] = s[7 + a]
+    ring[slot, pid, o + 2 * d] = s[10]
+    return (old[0], old[1], old[2], old[3], extra[0], extra[1], extra[2], extra[3], extra[4], extra[5], extra[6])
 
 
 @numba.njit(cache=True, inline="always")
 def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed, params, nc, inv, box, tb,
-            EXT, WEIGHTED):
+            EXT, WEIGHTED, COH):
     """Slot ``i``'s new heading and position into ``new_*[:, i]`` and its new cell into
     ``cell[i]``, from its sums ``s`` (:func:`metric_sums`' layout: with ``WEIGHTED``, the
     others' weighed headings, else the sum with itself; ``params``: the step's record);
-    returns the new heading (``wz`` is 0 in 2D). In the order of docs/model.md: the delay,
-    the update (field, noise, alignment, chirality), the move, the walls, the obstacles."""
+    returns the new heading (``wz``
+    is 0 in 2D). In the order of docs/model.md: the delay, cohesion, the update (field,
+    noise, alignment, chirality), the move, the walls, the obstacles."""
     d, n = pos.shape
     p = params[0]
     pid = ids[i]
@@ -336,16 +370,23 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
         # particles ahead so that its cache miss overlaps work
         cells.prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
         if not WEIGHTED:  # the ring holds the others' sum
-            s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0, s[3])
-        s = remember(ring, slot, pid, s, d)
-        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3])
+            s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+        s = remember(ring, slot, pid, s, d, COH)
+        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
     elif WEIGHTED:
-        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3])
+        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
     sx, sy, sz, total = s[0], s[1], s[2], s[3]
+    core = False
+    if COH:
+        sx, sy, sz, core = R.cohesive_sum(sx, sy, sz, s[4], s[5], s[6], s[7], s[8], s[9], s[10], tb.cohesion[0])
     vectorial = p.vectorial != 0
     if EXT:
         si = R.species_of(pid, tb.bounds)
         eta, epsilon, turn, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 2], tb.species[si, 3]
+        if core:  # an infinite repulsion drowns the field and vectorial noise
+            h = 0.0
+            if vectorial:
+                eta = 0.0
     else:
         eta, epsilon, turn, h = p.eta, p.epsilon, 0.0, 0.0
     ds = (spd[i] if spd.shape[0] == n else spd[0]) * p.dt
@@ -424,8 +465,9 @@ def build(features: Features) -> types.SimpleNamespace:
     (an array of one), ``tables`` the model's :class:`~flocking.backends.features.Tables`;
     ``threads`` only splits the work. Units of work: :func:`flocking.backends.cells.work_units`
     (mode 0 for ``lines``, 1 for ``search``)."""
-    EXT, CPL, NEM, CONE = features
+    EXT, CPL, NEM, CONE, COH = features
     WEIGHTED = features.weighted
+    ROWS = 4 if not COH else 12  # rows of the per-slot sums of ``lines``
 
     @numba.njit(cache=True, parallel=True)
     def lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
@@ -457,7 +499,7 @@ def build(features: Features) -> types.SimpleNamespace:
             buf = np.empty((2 * d + cols.shape[0], 4096))
             rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
             ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
-            out = np.empty((4, 16))
+            out = np.empty((ROWS, 16))
             acc = np.zeros(width)
             while True:
                 # units go to whichever thread is free: balanced when particles cluster or
@@ -482,11 +524,11 @@ def build(features: Features) -> types.SimpleNamespace:
                     elif not WEIGHTED:
                         reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
                     elif d == 2:
-                        wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0], out,
-                                   start[c] - s0, CPL, NEM, CONE)
+                        wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0],
+                                   tb.cohesion, out, start[c] - s0, CPL, NEM, CONE, COH)
                     else:
-                        wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0], out,
-                                   start[c] - s0, CPL, NEM, CONE)
+                        wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0],
+                                   tb.cohesion, out, start[c] - s0, CPL, NEM, CONE, COH)
                 px = 0.0
                 py = 0.0
                 pz = 0.0
@@ -496,14 +538,20 @@ def build(features: Features) -> types.SimpleNamespace:
                 for i in range(np.uint64(max(s0, 0)), np.uint64(max(s1, 0))):
                     q = np.int64(i) - s0
                     sz = out[2, q] if d == 3 else 0.0
-                    s = (out[0, q], out[1, q], sz, out[d, q])
+                    s = (out[0, q], out[1, q], sz, out[d, q], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                    if COH:
+                        o = d + 1
+                        s = (s[0], s[1], s[2], s[3], out[o, q], out[o + 1, q], out[o + 2, q] if d == 3 else 0.0,
+                             out[o + d, q], out[o + d + 1, q], out[o + d + 2, q] if d == 3 else 0.0,
+                             out[o + 2 * d, q])
                     if WEIGHTED:
                         # the sums include the particle itself, with its own species'
                         # coupling, in its cone, of its own sense: take it out
                         w = tb.coupling[int(tag[i]), int(tag[i])] if CPL else 1.0
-                        s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0, s[3])
+                        s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0, s[3], s[4], s[5],
+                             s[6], s[7], s[8], s[9], s[10])
                     wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
-                                         params, nc, inv, box, tb, EXT, WEIGHTED)
+                                         params, nc, inv, box, tb, EXT, WEIGHTED, COH)
                     if EXT:
                         add_moments(acc, wx, wy, wz, ids[i], tb.bounds, d, NEM)
                     else:
@@ -551,12 +599,12 @@ def build(features: Features) -> types.SimpleNamespace:
                         si = R.species_of(ids[i], tb.bounds) if CPL else 0
                         if k == 0:
                             s = metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM, CONE,
-                                            WEIGHTED)
+                                            COH, WEIGHTED)
                         else:
                             s = nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CPL, NEM,
-                                             CONE, WEIGHTED)
+                                             CONE, COH, WEIGHTED)
                         wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
-                                             params, nc, inv, box, tb, EXT, WEIGHTED)
+                                             params, nc, inv, box, tb, EXT, WEIGHTED, COH)
                         if EXT:
                             add_moments(acc, wx, wy, wz, ids[i], tb.bounds, d, NEM)
                         else:

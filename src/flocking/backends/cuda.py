@@ -64,7 +64,8 @@ _GPU_SHAPE, _SIM_SHAPE = Launch(256, 8, 8), Launch(16, 4, 4)
 #: parameters every replica of an ensemble shares (they fix the cells, the arrays and the
 #: kernels' extensions)
 SHARED = ("dim", "n", "box", "radius", "neighbours", "k", "noise_type", "update", "dt",
-          "boundary", "obstacles", "species", "coupling", "vision", "alignment_rule", "field")
+          "boundary", "obstacles", "species", "coupling", "vision", "alignment_rule", "field", "cohesion",
+          "cohesion_radii")
 #: parameters a replica may have of its own
 PER_REPLICA = ("seed", "noise", "alignment", "speed", "speeds", "delay", "chirality", "field_strength")
 
@@ -470,14 +471,14 @@ def device_tables(models: Sequence[Model], real) -> tuple[np.ndarray, ...]:
     """The fields of :class:`flocking.backends.cuda_kernels.DeviceTables` for replicas
     ``models`` (which share :data:`SHARED`), from :func:`flocking.backends.features.tables`,
     converted to ``real``: the species' values per replica ``(R, S, 4)``, then the first
-    model's bounds, coupling, field, cone and obstacles (an unused row when
+    model's bounds, coupling, field, cone, cohesion and obstacles (an unused row when
     there are none). The plain model's kernels take them and read none."""
     each = [tables(x) for x in models]
     first = each[0]
     obstacles = first.obstacles if len(first.obstacles) else np.zeros((1, models[0].dim + 1))
     species = np.stack([tb.species for tb in each]).astype(real)
     return (species, first.bounds, first.coupling.astype(real), first.field.astype(real), first.cone.astype(real),
-            obstacles.astype(real))
+            first.cohesion.astype(real), obstacles.astype(real))
 
 
 def check_supported(models: Sequence[Model]) -> None:

@@ -70,7 +70,7 @@ class Particles(typing.NamedTuple):
 class DeviceTables(typing.NamedTuple):
     """:class:`flocking.backends.features.Tables` on the device, in the run's float type,
     for every replica: ``species`` ``(R, S, 4)``; ``bounds``, ``coupling``, ``field``,
-    ``cone`` as there; ``obstacles`` ``(max(M, 1), d + 1)`` (an unused row
+    ``cone``, ``cohesion`` as there; ``obstacles`` ``(max(M, 1), d + 1)`` (an unused row
     when there are none)."""
 
     species: typing.Any
@@ -78,6 +78,7 @@ class DeviceTables(typing.NamedTuple):
     coupling: typing.Any
     field: typing.Any
     cone: typing.Any
+    cohesion: typing.Any
     obstacles: typing.Any
 
 
@@ -114,7 +115,7 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     (what is compiled in) and number of ``species`` (the width of the moment sums)."""
     real = np.float64 if precision == "float64" else np.float32
     R = compile_rules("cuda", real)
-    EXT, CPL, NEM, CONE = features
+    EXT, CPL, NEM, CONE, COH = features
     DIM, K, KA, NSPECIES = dim, k, max(k, 1), species
     WIDTH = moment_width(dim, species, NEM)
     BLOCK = launch.block
@@ -151,22 +152,23 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
 
     @cuda.jit(device=True)
     def plus(s, t):
-        return s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3]
+        return (s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3], s[4] + t[4], s[5] + t[5], s[6] + t[6],
+                s[7] + t[7], s[8] + t[8], s[9] + t[9], s[10] + t[10])
 
     @cuda.jit(device=True)
     def terms(i, j, dx, dy, dz, d2, inside, cur, tb, si, with_cone):
         """Neighbour candidate ``j`` of slot ``i`` by :func:`flocking.rules.physics.neighbour`."""
-        head = cur.head
+        head, coh = cur.head, tb.cohesion
         coupling = tb.coupling[si, R.species_of(cur.ids[j], tb.bounds)] if CPL else ONE
         uz = head[2, i] if DIM == 3 else ZERO
         vz = head[2, j] if DIM == 3 else ZERO
         return R.neighbour(DIM, dx, dy, dz, d2, inside, head[0, i], head[1, i], uz, head[0, j], head[1, j], vz,
-                           coupling, NEM, with_cone, tb.cone[0])
+                           coupling, NEM, with_cone, tb.cone[0], COH, coh[1], coh[2], coh[3], coh[4])
 
     @cuda.jit(device=True)
     def metric(i, cb, cur, start, p, tb, si):
         """The others within R of slot ``i`` (``cb``: the replica's first cell): weighed
-        heading sum (3) and count. Wrapped cells are shifted
+        heading sum (3), count, pull (3), push (3), core count. Wrapped cells are shifted
         by ``s*`` (``2L`` across a wall: out of reach); an axis of fewer than three cells
         takes the minimum image per pair."""
         pos = cur.pos
@@ -176,7 +178,7 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
         cx, cy = R.cell_index(xi, p.inv0, nc0), R.cell_index(yi, p.inv1, nc1)
         cz = R.cell_index(zi, p.inv2, nc2) if DIM == 3 else 0
         a0, a1, sha, b0, b1, shb = x_ranges(cx, nc0, p.s0)
-        s = (ZERO, ZERO, ZERO, ZERO)
+        s = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
         nz = R.lesser(nc2, 3) if DIM == 3 else 1
         for oz in range(nz):
             gz, shz = row_of(cz, oz, nc2, p.s2) if DIM == 3 else (0, ZERO)
@@ -222,10 +224,14 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
         c2 = R.cell_index(zi, p.inv2, p.nc2) if DIM == 3 else 0
         found = R.knearest(i, c0, c1, c2, cb, pos, cur.head, cur.ids, start, p.nc0, p.nc1, p.nc2, p.l0, p.l1, p.l2,
                            p.h0, p.h1, p.h2, DIM, K, CONE, tb.cone[0], bd, bi, bs)
-        s = (ZERO, ZERO, ZERO, ZERO)
+        s = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
         for q in range(K):
             if q < found:
-                s = plus(s, terms(i, bs[q], ZERO, ZERO, ZERO, bd[q], True, cur, tb, si, False))
+                j = bs[q]
+                dx = R.minimum_image(pos[0, j] - xi, p.l0, p.h0)
+                dy = R.minimum_image(pos[1, j] - yi, p.l1, p.h1)
+                dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2) if DIM == 3 else ZERO
+                s = plus(s, terms(i, j, dx, dy, dz, bd[q], True, cur, tb, si, False))
         return s
 
     # -- one step --------------------------------------------------------------------
@@ -234,8 +240,8 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
         """One step of a slot into ``new[:, slot]`` and its sort record into
         ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the sums of tau
-        steps ago (the others' heading sum and ``1 +`` their count: the cpu backend's
-        layout) and receives today's.
+        steps ago (the others' heading sum, ``1 +`` their count, with cohesion the pull,
+        the push and the core count: the cpu backend's layout) and receives today's.
         With ``prime``, only fill every ring slot with today's sums (the initial state
         stands in for the past)."""
         p = P[0]
@@ -258,7 +264,7 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
             s = nearest(i, cb, cur, start, p, tb, si, bd, bi, bs)
         gid = r * n + pid
         total = ONE + s[3]
-        s = (s[0], s[1], s[2], total)
+        s = (s[0], s[1], s[2], total, s[4], s[5], s[6], s[7], s[8], s[9], s[10])
         tau = rp[r].tau
         if prime:
             for slot in range(tau):
@@ -271,25 +277,44 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     @cuda.jit(device=True)
     def remember(ring, slot, gid, s):
         """Swap the sums ``s`` with those the ring holds for ``gid`` in ``slot``."""
+        W = ring.shape[2]
         old = (ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, 2] if DIM == 3 else ZERO,
                ring[slot, gid, DIM])
         ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, DIM] = s[0], s[1], s[3]
         if DIM == 3:
             ring[slot, gid, 2] = s[2]
-        return old
+        if not COH or W < 2 * DIM + 2:
+            return old[0], old[1], old[2], old[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10]
+        o = DIM + 1
+        extra = (ring[slot, gid, o], ring[slot, gid, o + 1], ring[slot, gid, o + 2] if DIM == 3 else ZERO,
+                 ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1],
+                 ring[slot, gid, o + DIM + 2] if DIM == 3 else ZERO, ring[slot, gid, o + 2 * DIM])
+        ring[slot, gid, o], ring[slot, gid, o + 1] = s[4], s[5]
+        ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1] = s[7], s[8]
+        if DIM == 3:
+            ring[slot, gid, o + 2], ring[slot, gid, o + DIM + 2] = s[6], s[9]
+        ring[slot, gid, o + 2 * DIM] = s[10]
+        return old[0], old[1], old[2], old[3], extra[0], extra[1], extra[2], extra[3], extra[4], extra[5], extra[6]
 
     @cuda.jit(device=True)
     def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
         """From the others' sums ``s`` to slot ``i``'s new heading, position and sort
-        record: the update, the move, the walls, the obstacles."""
+        record: cohesion, the update, the move, the walls, the obstacles."""
         pos, head = cur.pos, cur.head
         ux, uy = head[0, i], head[1, i]
         uz = head[2, i] if DIM == 3 else ZERO
         sx, sy, sz, total = ux + s[0], uy + s[1], uz + s[2], s[3]
+        core = False
+        if COH:
+            sx, sy, sz, core = R.cohesive_sum(sx, sy, sz, s[4], s[5], s[6], s[7], s[8], s[9], s[10], tb.cohesion[0])
         vectorial = p.vectorial != 0
         if EXT:
             eta, epsilon = tb.species[r, si, 0], tb.species[r, si, 1]
             turn, h = tb.species[r, si, 2], tb.species[r, si, 3]
+            if core:  # an infinite repulsion drowns the field and vectorial noise
+                h = ZERO
+                if vectorial:
+                    eta = ZERO
         else:
             eta, epsilon, turn, h = rp[r].eta, rp[r].epsilon, ZERO, ZERO
         if p.speeds != 0:
@@ -464,7 +489,8 @@ def signatures(precision: str, dim: int, species: int = 1) -> dict[str, tuple]:
         return nt.Array(dt, nd, "C")
 
     particles = nt.NamedTuple([a(real, 2), a(real, 2), a(real, 1), a(i32, 1)], Particles)
-    tb = nt.NamedTuple([a(real, 3), a(i64, 1), a(real, 2), a(real, 1), a(real, 1), a(real, 2)], DeviceTables)
+    tb = nt.NamedTuple([a(real, 3), a(i64, 1), a(real, 2), a(real, 1), a(real, 1), a(real, 1), a(real, 2)],
+                       DeviceTables)
     P = nt.Array(numpy_support.from_dtype(geometry_dtype(dtype)), 1, "C")
     rp = nt.Array(numpy_support.from_dtype(replica_dtype(dtype)), 1, "C")
     return {

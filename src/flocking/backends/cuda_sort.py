@@ -217,8 +217,8 @@ def build(launch: Launch) -> types.SimpleNamespace:
             if rank < tcount[d]:
                 dst[base[d] + rank] = v
 
-    return types.SimpleNamespace(digits=digits, scatter=scatter, block_scan=block_scan, bits=BITS, digits_per_pass=DIGITS,
-                                 tile=TILE, block=BLOCK, max_passes=PMAX, hist_size=HSIZE)
+    return types.SimpleNamespace(digits=digits, scatter=scatter, block_scan=block_scan, bits=BITS,
+                                 digits_per_pass=DIGITS, tile=TILE, block=BLOCK, max_passes=PMAX, hist_size=HSIZE)
 
 
 def radix(k, rec, rec2, m: int, npass: int, hist, status, tiles, clock, tick: bool, stream=0):

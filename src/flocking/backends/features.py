@@ -5,14 +5,14 @@ the CPU and the CUDA backend.
 :mod:`flocking.backends.cpu_kernels` and :mod:`flocking.backends.cuda_kernels` are built
 for one value of it, so an extension that is off is not in the code at all, and the plain
 model (``Features()``) runs the plain arithmetic. :func:`tables` gives the values a step
-reads (:class:`Tables`: walls, obstacles, species, coupling, field, vision), as
+reads (:class:`Tables`: walls, obstacles, species, coupling, field, vision, cohesion), as
 named arrays.
 
 >>> from flocking import Model
 >>> features(Model(n=10, box=5.0)) == Features()
 True
 >>> features(Model(n=10, box=5.0, vision=2.0, chirality=0.1))
-Features(extended=True, coupling=False, nematic=False, cone=True)
+Features(extended=True, coupling=False, nematic=False, cone=True, cohesion=False)
 >>> tables(Model(n=10, box=5.0, vision=2.0)).cone.round(6).tolist()  # cos(2) |cos(2)|
 [-0.173178]
 """
@@ -30,35 +30,37 @@ from ..model import Model
 class Features(typing.NamedTuple):
     """What the kernels compile in. ``extended``: any extension at all (walls, obstacles,
     per-species values, chirality, a field are then read from :class:`Tables`); the rest
-    weigh each neighbour pair: a ``coupling`` matrix, ``nematic`` alignment, a vision
-    ``cone``."""
+    weigh or add to each neighbour pair: a ``coupling`` matrix, ``nematic`` alignment, a
+    vision ``cone``, ``cohesion``."""
 
     extended: bool = False
     coupling: bool = False
     nematic: bool = False
     cone: bool = False
+    cohesion: bool = False
 
     @property
     def weighted(self) -> bool:
-        """Whether a neighbour pair is weighed."""
-        return self.coupling or self.nematic or self.cone
+        """Whether a neighbour pair is weighed or adds more than its heading."""
+        return self.coupling or self.nematic or self.cone or self.cohesion
 
 
 def ring_width(dim: int, features: Features) -> int:
     """Values a particle keeps in the delay ring (the CPU's and the GPU's layout): the
-    others' heading sum and ``1 +`` their count.
+    others' heading sum and ``1 +`` their count, and with cohesion the pull, the push and
+    the core count.
 
-    >>> ring_width(2, Features()), ring_width(3, Features(extended=True))
-    (3, 4)
+    >>> ring_width(2, Features()), ring_width(3, Features(extended=True, cohesion=True))
+    (3, 11)
     """
-    return dim + 1
+    return dim + 1 + (2 * dim + 1 if features.cohesion else 0)
 
 
 def features(model: Model) -> Features:
     """The :class:`Features` of ``model``."""
     on = model.extensions
     return Features(extended=bool(on), coupling="coupling" in on, nematic="nematic alignment" in on,
-                    cone="vision" in on)
+                    cone="vision" in on, cohesion="cohesion" in on)
 
 
 class Tables(typing.NamedTuple):
@@ -75,7 +77,9 @@ class Tables(typing.NamedTuple):
     - ``coupling`` (S, S): the weight of species ``b`` in the sum of species ``a``;
     - ``field`` (3): the field's unit direction (zeros without one);
     - ``cone`` (1): ``cos |cos|`` of the vision half-angle (-4 without a cone: every
-      neighbour is seen, see :func:`flocking.rules.physics.sees`).
+      neighbour is seen, see :func:`flocking.rules.physics.sees`);
+    - ``cohesion`` (5): the strength ``beta``, ``r_c^2``, ``r_e``, ``r_a`` and the slope
+      ``1 / (4 (r_a - r_e))`` of the attraction-repulsion (zeros without cohesion).
     """
 
     walls: np.ndarray
@@ -86,6 +90,7 @@ class Tables(typing.NamedTuple):
     coupling: np.ndarray
     field: np.ndarray
     cone: np.ndarray
+    cohesion: np.ndarray
 
 
 def tables(model: Model) -> Tables:
@@ -104,9 +109,13 @@ def tables(model: Model) -> Tables:
         field[:d] = model.field_direction
     cos_v = math.cos(model.vision)
     cone = np.array([cos_v * abs(cos_v) if model.vision < math.pi else -4.0])
+    cohesion = np.zeros(5)
+    if model.cohesion:
+        rc, re, ra = model.cohesion_radii
+        cohesion[:] = model.cohesion, rc * rc, re, ra, 1.0 / (4.0 * (ra - re))
     return Tables(walls=walls, half=np.where(walls != 0, np.inf, box / 2.0), obstacles=obstacles,
                   bounds=np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64),
-                  species=species, coupling=coupling, field=field, cone=cone)
+                  species=species, coupling=coupling, field=field, cone=cone, cohesion=cohesion)
 
 
 #: The scalar parameters of a step, as the CPU kernels read them: one record, by name.

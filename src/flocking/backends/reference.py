@@ -91,6 +91,26 @@ def weights(model: Model, a: np.ndarray, headings: np.ndarray) -> np.ndarray:
     return w
 
 
+def cohesion(model: Model, a: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gregoire and Chate's attraction-repulsion among the neighbours ``a`` (docs/model.md,
+    Cohesion): per particle the pull ``sum_j f(r_ij) e_ij`` over the neighbours at
+    ``r_ij >= r_c``, the push ``-sum_j e_ij`` over those inside the hard core
+    ``0 < r_ij < r_c``, and how many those are; ``e_ij`` is the unit vector from ``i`` to
+    ``j`` (minimum image), ``f(r) = (r - r_e) / (4 (r_a - r_e))`` below ``r_a`` and 1 beyond."""
+    rc, re, ra = model.cohesion_radii
+    disp = minimum_image(positions[None, :, :] - positions[:, None, :], np.asarray(model.box), np.asarray(model.walls))
+    r = np.sqrt(np.sum(disp * disp, axis=2))
+    others = a.copy()
+    np.fill_diagonal(others, False)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.where((r > 0)[..., None], disp / r[..., None], 0.0)
+    core = others & (r > 0) & (r < rc)
+    f = np.where(others & (r >= rc), np.where(r < ra, (r - re) / (4.0 * (ra - re)), 1.0), 0.0)
+    pull = np.sum(f[..., None] * e, axis=1)
+    push = -np.sum(np.where(core[..., None], e, 0.0), axis=1)
+    return pull, push, core.sum(axis=1)
+
+
 def align(u: np.ndarray, m: np.ndarray, epsilon: float) -> np.ndarray:
     """Rotate each ``u`` toward ``m`` by the fraction ``epsilon`` of the angle between them."""
     if epsilon == 1.0:
@@ -142,9 +162,12 @@ def wrap(positions: np.ndarray, box: np.ndarray) -> np.ndarray:
     return np.where(x >= box, x - box, x)
 
 
-def heading_update(model: Model, state: State, sums: np.ndarray, counts: np.ndarray) -> np.ndarray:
+def heading_update(model: Model, state: State, sums: np.ndarray, counts: np.ndarray,
+                   core: np.ndarray | None = None) -> np.ndarray:
     """Steps 3 to 6 of the step, with the field and chirality: from the sums of headings
-    ``S_i`` and their numbers of terms ``n_i`` to ``u_i(t+1)``."""
+    ``S_i`` and their numbers of terms ``n_i`` to ``u_i(t+1)``; for the particles where
+    ``core`` is true (a neighbour inside cohesion's hard core) neither the field nor
+    vectorial noise is added."""
     ids = np.arange(state.n, dtype=np.uint64)
     z0 = rng.uniform(model.seed, state.step, ids, rng.NOISE)
     z1 = rng.uniform(model.seed, state.step, ids, rng.NOISE + 1)
@@ -152,6 +175,10 @@ def heading_update(model: Model, state: State, sums: np.ndarray, counts: np.ndar
     s = sums.copy()
     eta = model.noise if len(set(model.species_values("noise"))) == 1 else per_particle(model, "noise")
     h = per_particle(model, "field_strength")
+    if core is not None:
+        h = np.where(core, 0.0, h)
+        if model.noise_type == "vectorial":
+            eta = np.where(core, 0.0, eta)
     if h.any():
         s += (h * counts)[:, None] * np.asarray(model.field_direction)[None, :]
     if model.noise_type == "vectorial":
@@ -274,7 +301,12 @@ class ReferenceBackend:
             sums = now.headings + weights(model, a, seen.headings) @ seen.headings
         if model.delay:
             counts += 1.0
-        new = heading_update(model, now, sums, counts)
+        core = None
+        if model.cohesion:
+            pull, push, inside = cohesion(model, a, seen.positions)
+            core = inside > 0
+            sums = np.where(core[:, None], push, sums + model.cohesion * pull)
+        new = heading_update(model, now, sums, counts, core)
         moving = new if model.update == "backward" else now.headings
         box = np.asarray(model.box)
         positions = now.positions + (now.speeds * model.dt)[:, None] * moving

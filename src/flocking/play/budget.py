@@ -71,8 +71,8 @@ def kernel(model: Model) -> str:
     (:func:`flocking.backends.features.features`): ``lines`` (metric, at least three
     cells a side), ``generic`` (metric, a box under ``3R`` along some axis),
     ``topological``, or with any extension ``extended lines`` (no pair weights),
-    ``extended weighted`` (a coupling matrix, nematic alignment or a vision cone),
-    ``extended`` (a box under ``3R``) and ``extended topological``.
+    ``extended weighted`` (a coupling matrix, nematic alignment, a vision cone or
+    cohesion), ``extended`` (a box under ``3R``) and ``extended topological``.
 
     >>> kernel(Model(n=100, box=10.0)), kernel(Model(n=100, box=10.0, boundary="wall"))
     ('lines', 'extended lines')

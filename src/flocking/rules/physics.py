@@ -23,7 +23,8 @@ ZERO, ONE, HALF, TWO, FOUR = 0.0, 1.0, 0.5, 2.0, 4.0
 TWO_PI, TINY, NEAR_X = 2.0 * math.pi, 1e-12, 0.9
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("greater", "update_2d", "update_3d", "species_of", "sees", "neighbour", "nematic_2d", "nematic_3d")
+RULES = ("greater", "update_2d", "update_3d", "species_of", "sees", "cohesion_term", "neighbour", "cohesive_sum",
+         "nematic_2d", "nematic_3d")
 
 
 def greater(a, b):
@@ -123,6 +124,7 @@ def update_3d(ux, uy, uz, sx, sy, sz, count, epsilon, eta, vectorial, seed, step
     return wx / norm, wy / norm, wz / norm
 
 
+
 def species_of(pid, bounds):
     """The species of particle ``pid``: species are contiguous id ranges, species ``s``
     from ``bounds[s]`` to ``bounds[s + 1]`` (the last bound is ``N``)."""
@@ -140,7 +142,26 @@ def sees(a, d2, cone):
     return a * abs(a) >= cone * d2
 
 
-def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nematic, with_cone, cone):
+def cohesion_term(dx, dy, dz, d2, inside, rc2, re, ra, slope):
+    """What a neighbour at ``r = (dx, dy, dz)``, ``d2 = |r|^2``, adds to cohesion when
+    ``inside`` (counted: within reach and seen): its pull ``f(|r|) r / |r|`` with
+    ``f = (|r| - r_e) slope`` below ``r_a`` (``slope = 1 / (4 (r_a - r_e))``: repulsive
+    below ``r_e``) and 1 from ``r_a`` on; or, inside the hard core ``0 < |r| < r_c``
+    (``rc2 = r_c^2``), its push ``-r / |r|`` and a count of 1. Returns ``(pull, push,
+    count)`` as seven numbers. A particle at distance 0 (itself, or one on top of it)
+    adds nothing. No branch: the CPU kernels sum it in SIMD lanes."""
+    r = math.sqrt(d2)
+    inv = ONE / r if r > ZERO else ZERO
+    core = inside & (d2 < rc2) & (r > ZERO)
+    pull = inside & (d2 >= rc2)
+    f = (r - re) * slope if r < ra else ONE
+    g = f * inv if pull else ZERO
+    h = inv if core else ZERO
+    return g * dx, g * dy, g * dz, -(h * dx), -(h * dy), -(h * dz), ONE if core else ZERO
+
+
+def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nematic, with_cone, cone, cohesion,
+              rc2, re, ra, slope):
     """What a candidate neighbour adds to a particle's sums (docs/model.md, steps 1 and 2
     with the extensions): the particle has heading ``u``, the candidate heading ``v``, at
     ``r = (dx, dy, dz)`` from it, ``d2 = |r|^2``; ``inside`` says whether the
@@ -149,10 +170,11 @@ def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nem
     It counts only if also in the vision cone (``with_cone``: :func:`sees`). Its heading
     is weighed by ``J c``: ``coupling``, the coupling of the two species (1 without a
     matrix), and with ``nematic`` alignment ``c = -1`` where the headings point apart
-    (``u . v < 0``; ``c = 1`` at 0). Returns ``(J c v (3), counted (0 or 1))``; the z
-    entry is 0 in 2D. The flags ``dim``, ``nematic`` and ``with_cone`` are compile-time
-    constants of the kernels, which fold away what they leave out; no other branch, so
-    the CPU sums it in SIMD lanes."""
+    (``u . v < 0``; ``c = 1`` at 0). With ``cohesion``, it adds :func:`cohesion_term`.
+    Returns ``(J c v (3), counted (0 or 1), pull (3), push (3), core count)``; the z
+    entries are 0 in 2D. The flags ``dim``, ``nematic``, ``with_cone`` and ``cohesion``
+    are compile-time constants of the kernels, which fold away what they leave out; no
+    other branch, so the CPU sums it in SIMD lanes."""
     if with_cone:
         a = ux * dx + uy * dy
         if dim == 3:
@@ -165,8 +187,21 @@ def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nem
         if dim == 3:
             dot += uz * vz
         w = w * (-ONE if dot < ZERO else ONE)
+    px = py = pz = qx = qy = qz = q = ZERO
+    if cohesion:
+        px, py, pz, qx, qy, qz, q = cohesion_term(dx, dy, dz, d2, inside, rc2, re, ra, slope)
     wz = vz * w if dim == 3 else ZERO
-    return vx * w, vy * w, wz, n
+    return vx * w, vy * w, wz, n, px, py, pz, qx, qy, qz, q
+
+
+def cohesive_sum(sx, sy, sz, px, py, pz, qx, qy, qz, q, beta):
+    """The heading sum with cohesion: ``S + beta * pull``, or, when ``q`` neighbours are
+    inside the hard core, their push alone (the limit ``f = -inf`` of Gregoire and
+    Chate). Returns the sum and whether the core decided it (then neither the field nor
+    vectorial noise, finite beside an infinite repulsion, is added)."""
+    if q > ZERO:
+        return qx, qy, qz, True
+    return sx + beta * px, sy + beta * py, sz + beta * pz, False
 
 
 def nematic_2d(wx, wy):
