@@ -26,7 +26,7 @@ factor above 1.05. Blocks of ``b`` values from a correlated series also miss the
 correlations that reach across block edges, which lowers the variance by
 ``2 sum_k k c_k / (b (1 + 2 sum_k c_k))`` (``c_k`` the correlation of the quantity at lag ``k``):
 for ``rho = 0.9`` and blocks of ``4 tau = 38`` values, 6 % for ``G`` and 12 % for ``chi``
-(``c_k = rho^4k``, ``rho^2k``), 3 % and 6 % in the error; with a scatter of 1.4 %
+(``c_k = rho^4k``, ``rho^2k``), 3 % and 6 % in the error; with a scatter of 1 %
 (``B`` = 5000), 12 % holds both beyond four standard deviations.
 """
 
