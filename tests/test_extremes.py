@@ -201,8 +201,8 @@ def test_cli_runs_in_a_field_of_length_1e_170(tmp_path):
     """A field whose squared length underflows to 0 (it crashed the run with a ZeroDivisionError)."""
     out = tmp_path / "X"
     result = subprocess.run([sys.executable, "-m", "flocking", "run", "--n", "100", "--box", "16", "--steps", "1",
-                             "--field", "1e-170,1e-170", "--field-strength", "0.5", "--out", str(out)], env={**os.environ, "PYTHONPATH": SRC}, capture_output=True, text=True,
-                            timeout=300)
+                             "--field", "1e-170,1e-170", "--field-strength", "0.5", "--out", str(out)],
+                            env={**os.environ, "PYTHONPATH": SRC}, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, describe(result)
     rows = (out / "observables.csv").read_text().splitlines()
     assert rows[0] == "step,polar_order" and len(rows) == 3

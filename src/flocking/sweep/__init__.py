@@ -3,8 +3,9 @@
 ``spec`` reads and validates a sweep file, ``point`` runs one point into a record,
 ``ensembles`` groups points into jobs, ``executors`` run jobs here or on Dask, ``runner``
 drives a sweep and stores each record as it arrives (``OUT/points/<id>.json``), ``results``
-gathers them into an xarray Dataset and plots it. Dask, distributed and xarray (the ``sweep`` extra) are imported only when
-needed; :func:`require` turns a missing one into a one-line error.
+gathers them into an xarray Dataset and plots it. Dask, distributed and xarray (the
+``sweep`` extra) are imported only when needed; :func:`require` turns a missing one into a
+one-line error.
 """
 
 from __future__ import annotations
