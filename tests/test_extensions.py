@@ -315,9 +315,13 @@ def group_accuracy(fraction, seed):
 
 def test_informed_individuals_steer_the_group_more_accurately_as_their_fraction_grows():
     seeds = range(6)
-    accuracy = {f: np.mean([group_accuracy(f, s) for s in seeds]) for f in (0.0, 0.05, 0.3)}
-    # nobody informed: the group's direction is uniform on the circle, cos has mean 0 and sd 1/sqrt(2)
-    assert abs(accuracy[0.0]) < 4 * (1 / math.sqrt(2)) / math.sqrt(len(seeds))
+    accuracy = {f: np.mean([group_accuracy(f, s) for s in seeds]) for f in (0.05, 0.3)}
+    # nobody informed: no direction is preferred. The square periodic box is symmetric under quarter turns,
+    # so the cosine of the group's direction with g has mean 0 and variance 1/2 exactly; the mean over 32
+    # independent runs has a standard deviation of 1/8, and 4 of them (0.5) is a bound that a group steered
+    # toward g breaks (its cosine is above 0.9 with 5 % informed)
+    nobody = [group_accuracy(0.0, s) for s in range(32)]
+    assert abs(np.mean(nobody)) < 4 * math.sqrt(0.5 / len(nobody))
     assert accuracy[0.05] > 0.9 and accuracy[0.3] > accuracy[0.05] - 0.02
     assert accuracy[0.3] > 0.98
 

@@ -144,3 +144,79 @@ def test_a_non_finite_state_is_refused_and_a_run_that_turns_non_finite_stops(tmp
         sim.run(10)
     rows = csv.read_text().splitlines()
     assert rows[0] == "step,polar_order" and len(rows) == 2 and rows[1].startswith("0,")  # no nan row
+
+
+# -- fields of any finite, non-zero length -------------------------------------------------------
+
+#: a component: 0, or +-10^e with e anywhere from -300 to 300
+component = st.one_of(st.just(0.0), st.builds(lambda sign, e: sign * 10.0**e, st.sampled_from([1.0, -1.0]),
+                                               st.floats(-300.0, 300.0)))
+
+
+def exact_direction(g) -> np.ndarray:
+    """``g / |g|`` in 60-digit decimal arithmetic (every float converts exactly), rounded once."""
+    from decimal import Decimal, localcontext
+
+    with localcontext() as ctx:
+        ctx.prec = 60
+        exact = [Decimal(x) for x in g]
+        norm = sum(x * x for x in exact).sqrt()
+        return np.array([float(x / norm) for x in exact])
+
+
+@settings(max_examples=300, deadline=None)
+@given(g=st.one_of(st.tuples(component, component), st.tuples(component, component, component)))
+def test_a_field_of_any_length_is_normalised_or_refused_in_one_line(g):
+    try:
+        model = flocking.Model(dim=len(g), n=10, box=4.0, field=list(g), field_strength=0.5)
+    except ParameterError as err:
+        assert not any(g)  # only the zero vector has no direction
+        assert str(err).startswith("field: must be a direction: a non-zero vector") and "\n" not in str(err)
+        return
+    u = np.asarray(model.field_direction)
+    assert abs(np.linalg.norm(u) - 1.0) < 4 * np.finfo(float).eps
+    np.testing.assert_allclose(u, exact_direction(g), rtol=0, atol=4 * np.finfo(float).eps)
+
+
+#: fields at the ends of the range, mixed signs, in 2D and 3D, and their directions
+EXTREME_FIELDS = [((1e-300, -1e-300), (2**-0.5, -(2**-0.5))), ((-1e300, 1e300), (-(2**-0.5), 2**-0.5)),
+                  ((1e300, -1e-300), (1.0, -0.0)), ((-1e-300, 0.0, 1e-300), (-(2**-0.5), 0.0, 2**-0.5)),
+                  ((1e-300, 1e300, -1e300), (0.0, 2**-0.5, -(2**-0.5)))]
+
+
+@pytest.mark.parametrize("backend", ["reference", "cpu"])
+@pytest.mark.parametrize("g, direction", EXTREME_FIELDS)
+def test_a_run_in_an_extreme_field_follows_it(backend, g, direction):
+    """The strongest field (h = 1000) without noise turns every heading to g in one step:
+    ``S_i + h n_i g`` is g within ``|S_i| / (h n_i) <= 1e-3``."""
+    model = flocking.Model(dim=len(g), n=50, box=5.0, noise=0.0, field=list(g), field_strength=1000.0, seed=1)
+    sim = flocking.Simulation(model, backend=backend)
+    sim.run(3)
+    headings = sim.state.headings
+    assert np.isfinite(sim.state.positions).all() and np.isfinite(sim.polar_order).all()
+    assert np.abs(headings - np.asarray(direction)).max() < 1e-3
+
+
+def test_cli_runs_in_a_field_of_length_1e_170(tmp_path):
+    """A field whose squared length underflows to 0 (it crashed the run with a ZeroDivisionError)."""
+    out = tmp_path / "X"
+    result = subprocess.run([sys.executable, "-m", "flocking", "run", "--n", "100", "--box", "16", "--steps", "1",
+                             "--field", "1e-170,1e-170", "--field-strength", "0.5", "--out", str(out)],
+                            env={**os.environ, "PYTHONPATH": SRC}, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, describe(result)
+    rows = (out / "observables.csv").read_text().splitlines()
+    assert rows[0] == "step,polar_order" and len(rows) == 3
+
+
+@pytest.mark.parametrize("species", ['[{n = 0}, {n = 100}]', '[{fraction = 0.001}, {fraction = 0.999}]'])
+def test_cli_refuses_an_empty_species_in_one_line(tmp_path, species):
+    config = tmp_path / "c.toml"
+    config.write_text(f"box = 10.0\nspecies = {species}\n" + ("n = 100\n" if "fraction" in species else ""))
+    out = tmp_path / "X"
+    result = subprocess.run([sys.executable, "-m", "flocking", "run", "--config", str(config), "--steps", "2",
+                             "--out", str(out)], env={**os.environ, "PYTHONPATH": SRC}, capture_output=True,
+                            text=True, timeout=300)
+    assert result.returncode == 2, describe(result)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error: species: every species must hold at least one particle")
+    assert not out.exists()

@@ -137,7 +137,7 @@ def test_failed_checkpoint_leaves_the_previous_one(tmp_path, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(np, "savez", broken)
-    with pytest.raises(OSError):
+    with pytest.raises(OSError, match="No space left on device"):  # the disk's own error, not another
         sim.save_checkpoint(path)
     assert path.read_bytes() == good
     assert sorted(os.listdir(tmp_path)) == ["c.npz"]  # no temporary left behind

@@ -43,10 +43,63 @@ def test_streams_and_neighbouring_keys_are_uncorrelated():
         assert abs(np.corrcoef(x, y)[0, 1]) < 5 / np.sqrt(n)
 
 
-@pytest.mark.parametrize("counter", [rng.POSITION, rng.HEADING, rng.SPEED, rng.NOISE])
-def test_stream_ids_are_disjoint(counter):
-    used = {rng.POSITION, rng.POSITION + 1, rng.POSITION + 2, rng.HEADING, rng.HEADING + 1, rng.SPEED,
-            rng.NOISE, rng.NOISE + 1}
-    # each purpose reserves a block of 16 counters: no purpose reaches into the next one
-    assert all((c // 16) != (counter // 16) or c - counter < 16 for c in used)
-    assert len({c // 16 for c in used}) == 4
+#: each purpose's block of counters: from its stream id to the next purpose's (16 for the last)
+BLOCKS = {"position": rng.POSITION, "heading": rng.HEADING, "speed": rng.SPEED, "noise": rng.NOISE}
+#: models that draw every kind of number: speeds per particle, obstacles to redraw
+#: positions from, 2D and 3D (a third position axis, a second heading number), both noises
+STREAM_MODELS = [dict(dim=dim, n=40, box=6.0, speeds="uniform", noise_type=noise, seed=9,
+                      obstacles=[{"centre": [3.0] * dim, "radius": 2.0}])
+                 for dim in (2, 3) for noise in ("angular", "vectorial")]
+
+
+def counters_by_purpose(monkeypatch) -> dict[str, set[int]]:
+    """The counters each purpose draws, found by what they change: every counter the
+    reference drawing asks for is perturbed alone (``u -> (u + 1/2) mod 1``), and the
+    outputs that move name its purpose: a random state's positions, headings or speeds,
+    or the headings after one step from a fixed state (the noise)."""
+    from flocking import Model, State
+    from flocking.backends import get
+
+    original, perturbed, asked = rng.uniform, [None], set()
+
+    def uniform(seed, step, particle, counter):
+        asked.add(int(counter))
+        u = original(seed, step, particle, counter)
+        return (u + 0.5) % 1.0 if counter == perturbed[0] else u
+
+    monkeypatch.setattr(rng, "uniform", uniform)
+    reference = get("reference")
+    runs = []
+    for kw in STREAM_MODELS:
+        model = Model(**kw)
+        start = State.random(model)
+
+        def draw(model=model, start=start):
+            state = State.random(model)
+            backend = reference(model, start)
+            backend.advance(1)
+            return {"position": state.positions, "heading": state.headings, "speed": state.speeds,
+                    "noise": backend.state.headings}
+
+        runs.append((draw, draw()))
+    purposes: dict[str, set[int]] = {name: set() for name in BLOCKS}
+    for counter in sorted(asked):
+        perturbed[0] = counter
+        moved = {name for draw, base in runs for name, value in draw().items() if not np.array_equal(value, base[name])}
+        assert moved, f"counter {counter} is drawn but changes nothing"
+        for name in moved:
+            purposes[name].add(counter)
+    return purposes
+
+
+def test_stream_ids_are_disjoint(monkeypatch):
+    purposes = counters_by_purpose(monkeypatch)
+    assert all(purposes.values()) and len(purposes["position"]) == 3  # one counter per axis, up to 3D
+    starts = sorted(BLOCKS.values())
+    assert len(set(starts)) == 4
+    for name, used in purposes.items():
+        first = BLOCKS[name]
+        end = min([s for s in starts if s > first], default=first + 16)
+        # no counter serves two purposes, and each purpose stays within its own block
+        assert all(used.isdisjoint(other) for other_name, other in purposes.items() if other_name != name), name
+        assert all(first <= c < end for c in used), (name, sorted(used), first, end)

@@ -25,7 +25,8 @@ from flocking.sweep import require  # noqa: E402
 from flocking.sweep.figures import summarise  # noqa: E402
 from flocking.sweep.results import gather, open_results, save  # noqa: E402
 from flocking.sweep.executors import Dask, Serial  # noqa: E402
-from flocking.sweep.runner import PointStore, execute, run_point, task_of  # noqa: E402
+from flocking.sweep.point import run_point  # noqa: E402
+from flocking.sweep.runner import PointStore, execute, task_of  # noqa: E402
 from flocking.sweep.spec import SweepSpec, expand, point_seed  # noqa: E402
 
 SRC = os.path.join(os.path.dirname(__file__), os.pardir, "src")

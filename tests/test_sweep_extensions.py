@@ -13,7 +13,8 @@ xr = pytest.importorskip("xarray")
 import flocking  # noqa: E402
 from flocking.model import ParameterError  # noqa: E402
 from flocking.sweep.results import gather  # noqa: E402
-from flocking.sweep.runner import RECORD_FORMAT, PointStore, execute  # noqa: E402
+from flocking.sweep.point import RECORD_FORMAT  # noqa: E402
+from flocking.sweep.runner import PointStore, execute  # noqa: E402
 from flocking.sweep.spec import SweepSpec  # noqa: E402
 
 FIXED = """

@@ -19,7 +19,8 @@ xr = pytest.importorskip("xarray")
 from flocking.model import ParameterError  # noqa: E402
 from flocking.sweep.figures import draw, plot, summarise  # noqa: E402
 from flocking.sweep.results import gather  # noqa: E402
-from flocking.sweep.runner import RECORD_FORMAT, PointStore  # noqa: E402
+from flocking.sweep.point import RECORD_FORMAT  # noqa: E402
+from flocking.sweep.runner import PointStore  # noqa: E402
 from flocking.sweep.spec import SweepSpec  # noqa: E402
 from flocking.viz.colors import THEMES  # noqa: E402
 

@@ -26,7 +26,8 @@ from flocking.model import ParameterError  # noqa: E402
 from flocking.sweep import ensembles  # noqa: E402
 from flocking.sweep.ensembles import jobs, run_group  # noqa: E402
 from flocking.sweep.executors import Dask, Serial  # noqa: E402
-from flocking.sweep.runner import MOMENTS, PointStore, execute, task_of  # noqa: E402
+from flocking.sweep.point import MOMENTS  # noqa: E402
+from flocking.sweep.runner import PointStore, execute, task_of  # noqa: E402
 from flocking.sweep.spec import SweepSpec  # noqa: E402
 from gpu_marks import CUDA_RUNS, gpu, no_gpu  # noqa: E402
 
@@ -58,7 +59,8 @@ import distributed
 from flocking.cli import main
 from flocking.sweep.executors import Dask
 from flocking.sweep.results import gather, open_results
-from flocking.sweep.runner import PointStore, execute, run_point, task_of
+from flocking.sweep.point import run_point
+from flocking.sweep.runner import PointStore, execute, task_of
 from flocking.sweep.spec import SweepSpec
 
 folder = tempfile.mkdtemp()
@@ -295,7 +297,7 @@ def test_device_sweep_groups_equal_single_runs_and_the_cpu_statistics(tmp_path, 
     """On a GPU: 3 noises x 2 sizes x 4 replicas (two ensembles of 12) give, bit for bit,
     the records of single cuda runs; and in the ordered phase the mean order agrees with
     a cpu sweep of other replicas within their errors."""
-    from flocking.sweep.runner import run_point
+    from flocking.sweep.point import run_point
 
     text = f"""
 [sweep]

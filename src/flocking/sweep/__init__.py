@@ -1,9 +1,11 @@
 """Sweeps: many independent runs over a grid of parameters, on Dask or in-process.
 
-``spec`` reads and validates a sweep file, ``runner`` runs its points and stores each as
-it finishes (``OUT/points/<id>.json``), ``results`` gathers them into an xarray Dataset
-and plots it. Dask, distributed and xarray (the ``sweep`` extra) are imported only when
-needed; :func:`require` turns a missing one into a one-line error.
+``spec`` reads and validates a sweep file, ``point`` runs one point into a record,
+``ensembles`` groups points into jobs, ``executors`` run jobs here or on Dask, ``runner``
+drives a sweep and stores each record as it arrives (``OUT/points/<id>.json``), ``results``
+gathers them into an xarray Dataset and plots it. Dask, distributed and xarray (the
+``sweep`` extra) are imported only when needed; :func:`require` turns a missing one into a
+one-line error.
 """
 
 from __future__ import annotations

@@ -13,8 +13,9 @@ ones are split.
 
 Each replica of an ensemble takes, bit for bit, the steps of its model alone on the
 ``cuda`` backend (tested under numba's CUDA simulator), so a record does not depend on
-the group it ran in: a cuda point gives the same record run alone (:func:`run_point`),
-in a group of any size, in this process or on a Dask worker.
+the group it ran in: a cuda point gives the same record run alone
+(:func:`~flocking.sweep.point.run_point`), in a group of any size, in this process or on
+a Dask worker.
 
 >>> from flocking.sweep.spec import SweepSpec
 >>> from flocking.sweep.runner import task_of
@@ -32,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..observables import extra_names
-from .runner import Extra, fail, new_record, run_point, start_trajectory, summarise
+from .point import Extra, fail, new_record, run_point, start_trajectory, summarise
 
 #: Most particles (replicas x n) of one ensemble, and most polar order values (replicas
 #: x steps) it returns at once: a group beyond either is split.

@@ -34,7 +34,7 @@ from typing import Any
 
 from ..model import ParameterError
 from .ensembles import run_job
-from .runner import new_record
+from .point import new_record
 
 #: Seconds to wait for a scheduler's TCP port to answer before giving up.
 CONNECT_TIMEOUT = 5.0
