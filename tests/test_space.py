@@ -155,3 +155,19 @@ def test_boxes_touching_obstacles_match_sampling(walls):
         assert not got[(lower[:, 0] == 8.75) & (lower[:, 1] == 3.75)].any()
     else:
         assert got[(lower[:, 0] == 8.75) & (lower[:, 1] == 3.75)].all()
+
+
+@pytest.mark.parametrize("dim, walls", [(2, (False, True)), (3, (True, False, True)), (2, (False, False))])
+def test_pair_histogram_matches_the_pairs(dim, walls):
+    rng = np.random.default_rng(dim)
+    box = np.array([7.0, 5.0, 6.0][:dim])
+    points = rng.uniform(0, 1, (500, dim)) * box
+    vectors = rng.normal(size=(500, dim))
+    expected = brute_pairs(points, box, walls, 2.5)
+    keys = np.array(list(expected.keys()))
+    r = np.array(list(expected.values()))
+    b = np.minimum((r / 2.5 * 10).astype(int), 9)
+    counts, sums = Space(tuple(box), walls).pair_histogram(points, 2.5, 10, vectors)
+    np.testing.assert_array_equal(counts, np.bincount(b, minlength=10))
+    dots = (vectors[keys[:, 0]] * vectors[keys[:, 1]]).sum(axis=1)
+    np.testing.assert_allclose(sums, np.bincount(b, weights=dots, minlength=10), rtol=1e-12, atol=1e-12)

@@ -272,6 +272,24 @@ class Space:
             yield Pairs(out_i, out_j, out_r)
             first = last
 
+    def pair_histogram(self, points: Sequence, cutoff: float, bins: int, vectors=None) -> tuple[np.ndarray, ...]:
+        """Over the pairs of :meth:`pair_blocks` (each once), by distance in ``bins``
+        equal bins of ``[0, cutoff)``: ``(counts, sums)``, ``sums`` the sum of
+        ``vectors[i] . vectors[j]`` (rows, one per point; zeros when not given). A pair
+        histogram in one parallel pass, with no list of pairs.
+
+        >>> points, vectors = [[0.5, 0.5], [9.5, 0.5], [0.5, 9.0]], [[1, 0], [1, 1], [2, 0]]
+        >>> Space((10.0, 10.0)).pair_histogram(points, 2.0, 4, vectors)  # distances 1, 1.5 and 1.8
+        (array([0., 0., 1., 2.]), array([0., 0., 1., 4.]))
+        """
+        cl = self.cells(points, cutoff)
+        vectors = np.zeros((len(cl.order), 1)) if vectors is None else np.asarray(vectors, dtype=np.float64)
+        vectors = np.ascontiguousarray(vectors.reshape(len(cl.order), -1)[cl.order])
+        chunks = int(min(len(cl.start) - 1, 8 * numba.get_num_threads()))
+        counts, sums = _pair_histogram(cl.points, vectors, cl.start, cl.near, cl.lengths, cl.half, float(cutoff),
+                                       int(bins), chunks)
+        return counts, sums
+
     def pairs(self, points: Sequence, cutoff: float) -> Pairs:
         """Every pair of ``points`` strictly closer than ``cutoff``, once each (see
         :meth:`pair_blocks`), ``i < j``."""
@@ -392,3 +410,31 @@ def _pair_fill(pos, order, start, near, lengths, half, cutoff2, first, last, off
                         out_i[m], out_j[m] = min(a, b), max(a, b)
                         out_r[m] = math.sqrt(r2)
                         m += 1
+
+
+@_pjit
+def _pair_histogram(pos, vec, start, near, lengths, half, cutoff, nbins, nchunks):
+    """Per chunk of cells, pair counts and sums of ``vec_i . vec_j`` per distance bin
+    (pairs as :func:`_pair_counts` counts them), then summed over the chunks in order."""
+    ncell = len(start) - 1
+    counts = np.zeros((nchunks, nbins))
+    sums = np.zeros((nchunks, nbins))
+    cutoff2 = cutoff * cutoff
+    scale = nbins / cutoff
+    for chunk in numba.prange(nchunks):
+        for c in range(chunk * ncell // nchunks, (chunk + 1) * ncell // nchunks):
+            for k in range(near.shape[1]):
+                c2 = near[c, k]
+                if c2 < c:
+                    continue
+                for i in range(start[c], start[c + 1]):
+                    for j in range(i + 1 if c2 == c else start[c2], start[c2 + 1]):
+                        r2 = _distance2(pos, i, j, lengths, half)
+                        if r2 < cutoff2:
+                            b = min(int(math.sqrt(r2) * scale), nbins - 1)
+                            dot = 0.0
+                            for a in range(vec.shape[1]):
+                                dot += vec[i, a] * vec[j, a]
+                            counts[chunk, b] += 1.0
+                            sums[chunk, b] += dot
+    return counts.sum(axis=0), sums.sum(axis=0)

@@ -84,7 +84,7 @@ def point_counts(points: np.ndarray, origin, length: float, levels: int):
 
 def obstacle_note(space: Space) -> str:
     """What box counting does with the obstacles of ``space``."""
-    share = float(space.in_obstacle(space.grid(1 << 16)).mean())
+    share = float(space.in_obstacle(space.grid()).mean())
     return (f"obstacles cover {share:.1%} of the box and are counted as box: the boxes inside them stay empty, "
             "which lowers N(eps) by that share at sides well below their size (the slope holds) and bends it at "
             "sides comparable to it")

@@ -6,8 +6,8 @@ engine's (:class:`flocking.space.Space`): the minimum image along periodic axes,
 plain difference between walls, so no pair reaches across a wall; obstacles hide no
 neighbour in the engine, so pairs across them count. Two methods:
 
-- ``"cells"``: exact, the pairs of :meth:`flocking.space.Space.pair_blocks` (a cell list
-  with cells of side ``>= r_max``): O(N) per frame for a fixed ``r_max`` (the cost grows
+- ``"cells"``: exact, the pairs of :meth:`flocking.space.Space.pair_histogram` (a cell
+  list with cells of side ``>= r_max``): O(N) per frame for a fixed ``r_max`` (the cost grows
   as ``N rho r_max^d``).
 - ``"grid"``: the headings are summed on a grid of spacing ``dr / 2`` and the pair sums
   come from one FFT autocorrelation, O(M log M) for M grid cells, for any ``r_max``;
@@ -64,13 +64,8 @@ def first_zero(r: np.ndarray, c: np.ndarray) -> float:
 def cell_sums(space: Space, positions, du, r_max: float, nbins: int):
     """``(sum of du_i.du_j, number of ordered pairs i != j)`` per bin of ``[0, r_max)``,
     over the pairs closer than ``r_max`` in ``space``."""
-    sums, counts = np.zeros(nbins), np.zeros(nbins)
-    for pairs in space.pair_blocks(positions, r_max):
-        b = np.minimum((pairs.distance * (nbins / r_max)).astype(np.int64), nbins - 1)
-        dot = np.einsum("ij,ij->i", du[pairs.i], du[pairs.j])
-        sums += 2.0 * np.bincount(b, weights=dot, minlength=nbins)  # (i, j) and (j, i)
-        counts += 2.0 * np.bincount(b, minlength=nbins)
-    return sums, counts
+    counts, sums = space.pair_histogram(positions, r_max, nbins, du)
+    return 2.0 * sums, 2.0 * counts  # (i, j) and (j, i)
 
 
 def grid_sums(space: Space, positions, du, r_max: float, dr: float, max_cells: int = 1 << 24):

@@ -88,7 +88,7 @@ def fluctuation_notes(space: Space, boxes, fitted, alpha: float) -> list[str]:
         if lost:
             notes.append(f"sides {', '.join(lost)}: every sub-box overlaps an obstacle, so they give no count")
     if np.isnan(alpha):
-        notes.append(f"alpha: NaN, {int(fitted.sum())} size{'s' * (fitted.sum() != 1)} with counts that "
+        notes.append(f"alpha: NaN, {int(fitted.sum())} size{'s' * int(fitted.sum() != 1)} with counts that "
                      "fluctuate in the fit range (a slope needs two); give other sizes or fit_range")
     return notes
 

@@ -32,25 +32,32 @@ takes as the larger of two:
   binomial, ``Var M = N p (1 - p)`` exactly, ``p`` the window's share of the free volume
   (``k / B`` without obstacles);
 - the fluctuations of this very state, measured across the band: a band is uniform along
-  its stripe, so the slabs of every other candidate direction (``B`` of them, the same
-  volume as the profile's) see the state's density fluctuations and not its bands.
-  ``Var M`` is the mean square excess of every ``k`` consecutive such slabs over all
-  frames and other directions. This is what makes the test hold in ordered
-  homogeneous states, whose giant number fluctuations exceed the ideal gas' by 10 to
-  100 times at these scales.
+  its stripe, so slabs along the stripe (``B`` of them, the same volume as the profile's,
+  along the lattice directions closest to perpendicular to the profile's, an axis with
+  walls included) see the state's density fluctuations and not its bands. ``Var M`` is
+  the mean square excess of every ``k`` consecutive such slabs over all frames and those
+  directions. This is what makes the test hold in ordered homogeneous states, whose
+  giant number fluctuations exceed the ideal gas' by 10 to 100 times at these scales.
 
 A candidate is a band when ``z = M / sqrt(Var M) >= z_min`` (default 5). The transverse
-estimate assumes fluctuations of the same size along and across the motion.
+estimate assumes fluctuations of the same size along and across the motion; slabs of the
+same shape, as along the two axes or the two diagonals of a square box, make it a
+like-for-like comparison.
 
 **Obstacles** take volume from some slabs: each slab's expected count ``e_b`` is ``N``
 times its share of the free volume (measured on a fine grid), the density is per free
 volume, and the relative density is ``n_b / e_b``. **Walls** bound no slab (only periodic
 axes make up a direction).
 
-**Width.** The equivalent width of each band: its excess over the gas (the median
-relative density outside every band), summed over the window, divided by its height, the
-mean excess over the gas of the window's slabs above the candidate level (else of the
-run's slabs). It is exact for a flat band (a band of ``w`` slabs of excess ``h``: ``w h / h``).
+**Width.** The width of the flat band that has the band's excess mass (over the gas: the
+median relative density outside every band, summed over the window) and fits its slabs
+best (least squares, a slab that the flat band covers in part holding that part): its
+excess mass over its height. Exact for a flat band wherever it lies among the slabs (a
+band of ``w`` slabs of excess ``h``: ``w h / h``); the centre is the flat band's. A flat
+band two slabs wide fits as well as any narrower one inside the same slabs, so under 2.5
+slabs the width is the band's excess mass over the mean excess of its slabs above the
+candidate level instead (exact for a band that fills whole slabs); use narrower slabs
+(``bin_width``) to resolve narrow bands.
 
 **Speed.** The shift that best overlays two successive profiles (periodic
 cross-correlation, refined by a parabola), over the time between them (steps times
@@ -190,9 +197,43 @@ def find_bands(counts: np.ndarray, expected: np.ndarray, variance: NullVariance,
     return windows, np.array(zs), runs
 
 
+def flat_band(excess: np.ndarray) -> tuple[float, float]:
+    """``(width, centre)`` in slabs (the centre from the first slab's lower edge) of the
+    flat band, of the same excess mass, that fits the slabs' ``excess`` best (least
+    squares): a band of ``w`` slabs of height ``mass / w``, each slab holding its share of
+    it, a slab that the band covers in part the part it covers. Exact for a flat band
+    wherever it lies among the slabs.
+
+    >>> edges = np.clip(np.minimum(np.arange(1, 11), 6.7) - np.maximum(np.arange(10), 2.3), 0, None)
+    >>> [round(v, 6) for v in flat_band(2.0 * edges)]  # a band of 4.4 slabs from 2.3 to 6.7, height 2
+    [4.4, 4.5]
+    """
+    mass = float(excess.sum())
+    lower = np.arange(len(excess), dtype=float)
+    weight = np.clip(excess, 0, None)
+    guess = float((weight * (lower + 0.5)).sum() / weight.sum())
+
+    def best(centres, widths):
+        c, w = np.meshgrid(centres, widths, indexing="ij")
+        cover = np.minimum(lower + 1, (c + w / 2)[..., None]) - np.maximum(lower, (c - w / 2)[..., None])
+        model = mass / w[..., None] * np.clip(cover, 0, 1)
+        cost = ((excess - model) ** 2).sum(axis=-1)
+        i, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        return float(centres[i]), float(widths[j])
+
+    centre, width = best(guess + np.linspace(-1, 1, 21), np.arange(0.25, len(excess) + 0.25, 0.25))
+    centre, width = best(centre + np.linspace(-0.1, 0.1, 21), np.maximum(width + np.linspace(-0.25, 0.25, 51), 0.01))
+    return width, centre
+
+
 def band_shapes(relative: np.ndarray, windows, runs, level: float):
-    """``(equivalent widths in slabs, centres in slabs)`` of the bands in ``windows`` of a
-    profile of ``relative`` densities (1 on average)."""
+    """``(widths in slabs, centres in slabs)`` of the bands in ``windows`` of a profile of
+    ``relative`` densities (1 on average), from each window's excess over the gas (the
+    median relative density outside every band): the :func:`flat_band` that fits it, or,
+    when that is under 2.5 slabs wide (a flat band of two slabs or less fits as well as
+    any narrower one inside the same slabs), the equivalent width: the excess mass over
+    the mean excess of the slabs above ``level`` (of the run, if none), exact for a flat
+    band that fills whole slabs, and the excess-weighted centre."""
     outside = np.ones(len(relative), bool)
     for window in windows:
         outside[window] = False
@@ -200,12 +241,14 @@ def band_shapes(relative: np.ndarray, windows, runs, level: float):
     widths, centres = [], []
     for window, (first, length) in zip(windows, runs):
         excess = relative[window] - gas
-        top = relative[window] > level
-        height = excess[top].mean() if top.any() else excess[2:2 + length].mean()
-        widths.append(excess.sum() / height)
-        offsets = np.arange(-2, len(window) - 2) + 0.5  # slab centres from the run's first slab
-        weight = np.clip(excess, 0, None)
-        centres.append(first + (weight * offsets).sum() / weight.sum())
+        width, centre = flat_band(excess)
+        if width < 2.5:
+            top = relative[window] > level
+            width = excess.sum() / (excess[top].mean() if top.any() else excess[2:2 + length].mean())
+            weight = np.clip(excess, 0, None)
+            centre = (weight * (np.arange(len(window)) + 0.5)).sum() / weight.sum()
+        widths.append(width)
+        centres.append(first - 2 + centre)  # the window starts two slabs before the run
     return np.array(widths), np.array(centres) % len(relative)
 
 
@@ -261,9 +304,15 @@ class Slabs:
         return float(np.mean(relative.var(axis=1) - (1.0 / expected).mean(axis=1)))
 
     def transverse(self, direction: Direction, bins: int) -> np.ndarray:
-        """Rows of ``bins`` slab counts less their expectations, along every other direction."""
-        rows = [self.counts[d.lattice, bins] - self.expected(d, bins) for d in self.directions if d is not direction]
-        return np.concatenate(rows) if rows else np.zeros((0, bins))
+        """Rows of ``bins`` slab counts less their expectations along the directions
+        closest to perpendicular to ``direction`` (those along its stripes)."""
+        others = [d for d in self.directions if d.lattice != direction.lattice]
+        if not others:
+            return np.zeros((0, bins))
+        tilt = np.array([abs(d.normal @ direction.normal) for d in others])
+        rows = [self.counts[d.lattice, bins] - self.expected(d, bins) for d, t in zip(others, tilt)
+                if t <= tilt.min() + 0.05]
+        return np.concatenate(rows)
 
 
 class DensityProfile(Analysis):
@@ -339,7 +388,9 @@ class DensityProfile(Analysis):
             if asked.lattice not in [d.lattice for d in candidates]:
                 candidates.append(asked)
         bins = {d.lattice: self._bins(d, first.n) for d in candidates}
-        slabs = Slabs(frames, candidates, bins)
+        # the stripes of a band may run along an axis with walls: the slabs across a band there too
+        across = [Direction(m, space) for m in lattice_directions(Space(space.box))]
+        slabs = Slabs(frames, candidates + [d for d in across if d.lattice not in bins], bins)
         contrasts = np.array([slabs.contrast(d) for d in candidates])
         heading = sum((f.headings.sum(axis=0) for f in frames if f.headings is not None), np.zeros(first.dim))
         if asked is not None:
