@@ -274,7 +274,7 @@ def test_bands_between_walls_run_along_periodic_axes_only():
     dp = fa.DensityProfile().compute((channel, points, np.tile([1.0, 0.0], (len(points), 1))))
     assert dp.candidates == [(1, 0)] and dp.lattice == (1, 0) and dp.band_count == 1
     assert any(note.startswith("walls on y: bands are looked for along periodic directions only") for note in dp.notes)
-    with pytest.raises(flocking.ParameterError, match=r"direction: must lie along periodic axes; this box has walls on y"):
+    with pytest.raises(flocking.ParameterError, match="direction: must lie along periodic axes; this box has walls on y"):
         fa.DensityProfile(direction=(1, 1)).compute((channel, points))
     with pytest.raises(flocking.ParameterError, match="system: has walls on x and y, every axis"):
         fa.DensityProfile().compute((Space((60.0, 20.0), walls=(True, True)), points))

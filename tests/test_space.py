@@ -104,7 +104,8 @@ def test_cell_shape_is_at_least_the_cutoff_wide():
 
 
 def test_space_of_a_model_and_of_its_frames(tmp_path):
-    model = flocking.Model(n=50, box=(12.0, 8.0), boundary="periodic,wall", obstacles=[{"centre": [3, 4], "radius": 1.5}])
+    model = flocking.Model(n=50, box=(12.0, 8.0), boundary="periodic,wall",
+                           obstacles=[{"centre": [3, 4], "radius": 1.5}])
     sim = flocking.Simulation(model)
     sim.writers.append(flocking.GSDWriter(tmp_path / "t.gsd", every=5))
     sim.run(10)

@@ -18,7 +18,8 @@ neighbours see across them); :meth:`Space.in_obstacle` and
 >>> pairs = space.pairs([[0.5, 0.5], [9.5, 0.5], [0.5, 9.5]], cutoff=2.0)  # across x = 0, not across the walls
 >>> pairs.i.tolist(), pairs.j.tolist(), pairs.distance.tolist()
 ([0], [1], [1.0])
->>> Space.of(Model(n=10, box=8.0, obstacles=[{"centre": [4, 4], "radius": 1}])).in_obstacle([[4.5, 4.0], [1, 1]]).tolist()
+>>> pillar = Model(n=10, box=8.0, obstacles=[{"centre": [4, 4], "radius": 1}])
+>>> Space.of(pillar).in_obstacle([[4.5, 4.0], [1, 1]]).tolist()
 [True, False]
 """
 
