@@ -100,7 +100,7 @@ def test_legends_state_what_the_summary_states(computed):
     assert any(t.startswith("$D = ") for t in texts)
     assert profile.band_count == 1
     texts = [t.get_text() for t in profile.plot().get_legend().get_texts()]
-    assert "band (equivalent width)" in texts
+    assert f"band, width {profile.band_widths[0]:.3g}" in texts
 
 
 def test_every_figure_renders_at_every_size(computed, tmp_path):

@@ -482,11 +482,13 @@ class DensityProfile(Analysis):
         ax.axhline(np.nanmean(self.density), color=colours[-1], lw=0.8, ls="--", label="mean")
         step = self.x[1] - self.x[0] if len(self.x) > 1 else 1.0
         low, high = self.x[0] - step / 2, self.x[-1] + step / 2
+        widths = ", ".join(f"{w:.3g}" for w in self.band_widths)
+        label = f"band{'s' * (len(self.band_widths) > 1)}, width{'s' * (len(self.band_widths) > 1)} {widths}"
         for i, (centre, w) in enumerate(zip(self.band_centres, self.band_widths)):
             for shift in (-(high - low), 0.0, high - low):  # a band across the boundary shows at both ends
                 if centre + shift + w / 2 > low and centre + shift - w / 2 < high:
                     ax.axvspan(centre + shift - w / 2, centre + shift + w / 2, color=colours[1], alpha=0.25, lw=0,
-                               label="band (equivalent width)" if i == 0 and shift == 0 else None)
+                               label=label if i == 0 and shift == 0 else None)
         ax.set_xlim(low, high)
         toward = "+" if self.heading_sign > 0 else "-"
         if self.axis_used is not None:
