@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 import flocking.analysis as fa
-from flocking.analysis._input import from_box_points
+from flocking.analysis.snapshots import from_box_points
 
 
 def moved(base, rng, step):

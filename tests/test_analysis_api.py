@@ -137,7 +137,8 @@ def test_results_before_compute_and_read_only():
     lambda: fa.NumberFluctuations(sizes=[-1]), lambda: fa.NumberFluctuations(fit_range=(5, 1)),
     lambda: fa.NumberFluctuations(frames=0), lambda: fa.VelocityCorrelation(r_max=0),
     lambda: fa.VelocityCorrelation(method="fft"), lambda: fa.VelocityCorrelation(r_max=1, dr=2),
-    lambda: fa.DensityProfile(axis=3), lambda: fa.DensityProfile(threshold=-1),
+    lambda: fa.DensityProfile(direction=3), lambda: fa.DensityProfile(direction=(0, 0)),
+    lambda: fa.DensityProfile(direction=(1, 0.5)), lambda: fa.DensityProfile(threshold=-1),
     lambda: fa.Clusters(radius=-2), lambda: fa.BoxCounting(fit_range=(3, 1)),
     lambda: fa.MeanSquareDisplacement(max_lag=0),
 ])
@@ -163,7 +164,7 @@ def test_bad_inputs(tmp_path):
         (fa.MeanSquareDisplacement(), (5.0, pts)),
         (fa.BoxCounting(), np.zeros((4, 4), bool)),
         (fa.BoxCounting(fit_range=(100, 200)), np.ones((4, 4), bool)),
-        (fa.DensityProfile(axis=2), (5.0, pts)),
+        (fa.DensityProfile(direction=2), (5.0, pts)),
     ]
     not_gsd = tmp_path / "x.gsd"
     not_gsd.write_text("hello")
@@ -179,7 +180,7 @@ def test_dicts_are_plain_json():
     rng = np.random.default_rng(1)
     pts = rng.uniform(0, 20, (3000, 2))
     u = rng.normal(size=(3000, 2))
-    frames = [fa._input.from_box_points(20.0, (pts + 0.1 * t) % 20, u, step=t) for t in range(4)]
+    frames = [fa.snapshots.from_box_points(20.0, (pts + 0.1 * t) % 20, u, step=t) for t in range(4)]
     objs = [fa.PolarOrder().compute(rng.uniform(0, 1, 100), n=5), fa.NumberFluctuations().compute(frames),
             fa.VelocityCorrelation(r_max=5).compute(frames), fa.DensityProfile().compute(frames),
             fa.Clusters().compute(frames), fa.BoxCounting().compute(frames),
@@ -187,7 +188,10 @@ def test_dicts_are_plain_json():
     for obj in objs:
         data = json.loads(json.dumps(obj.to_dict(), allow_nan=False))
         assert data["quantity"] == type(obj).__name__
-        assert set(data) == {"quantity", "parameters", *type(obj)._keys}
+        assert set(data) == {"quantity", "parameters", "notes", *type(obj)._keys}
+        missing = [key for key in type(obj)._keys if isinstance(getattr(obj, key), float)  # NaN: each has a reason
+                   and math.isnan(getattr(obj, key))]
+        assert all(any(key in note for note in data["notes"]) for key in missing), (type(obj).__name__, missing)
     assert objs[-1].msd[0] == pytest.approx(2 * 0.1**2)
 
 

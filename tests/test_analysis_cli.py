@@ -210,3 +210,34 @@ def test_only_and_out(run_dir, tmp_path):
     assert set(data) >= {"clusters", "boxcount"} and "polar" not in data
     assert data["clusters"]["num_frames"] == 2 and data["clusters"]["radius_used"] == 0.5
     assert sorted(os.listdir(out)) == ["analysis.json", "box_counting.csv", "cluster_sizes.csv"]
+
+
+def test_nan_results_say_why_in_the_summary_and_the_json(tmp_path):
+    # headings turning along x (C(r) positive up to about 15) and no band: the summary and analysis.json say why
+    n = 120
+    g = (np.arange(n) + 0.5) * (40.0 / n) - 20.0
+    x, y = np.meshgrid(g, g, indexing="ij")
+    pts = np.c_[x.ravel(), y.ravel()]
+    vel = np.c_[np.cos(2 * np.pi * pts[:, 0] / 40.0), np.sin(2 * np.pi * pts[:, 0] / 40.0)]
+    write_gsd(tmp_path / "t.gsd", [(0, [40.0, 40.0], pts, vel)])
+    res = run("analyze", tmp_path / "t.gsd", "--only", "correlation,profile", "--r-max", 5, "--no-plots")
+    assert res.exit_code == 0, res.output
+    assert "velocity correlation: no zero of C(r) up to r_max = 5 (see notes)" in res.output
+    assert "correlation: correlation length: NaN, C(r) stays positive up to r_max = 5 (no zero crossing)" in res.output
+    assert "band_width, band_speed: NaN, no significant band in 1 frame" in res.output
+    data = json.loads((tmp_path / "analysis.json").read_text())
+    assert data["correlation"]["correlation_length"] is None
+    assert data["correlation"]["notes"][0].startswith("correlation length: NaN")
+    assert "correlation length: NaN" in data["notes"]["correlation"]
+
+
+def test_a_channel_run_is_measured_with_its_walls(tmp_path):
+    out = tmp_path / "channel"
+    res = run("run", "--n", 400, "--box", "32,8", "--boundary", "periodic,wall", "--noise", 1.0, "--steps", 40,
+              "--every", 20, "--out", out, "-q", "--no-plots")
+    assert res.exit_code == 0, res.output
+    res = run("analyze", out, "--only", "clusters,correlation,profile", "--start", 0, "--no-plots")
+    assert res.exit_code == 0, res.output
+    assert "clusters: walls on y: no link across them" in res.output
+    data = json.loads((out / "analysis.json").read_text())
+    assert data["profile"]["candidates"] == [[1, 0]] and data["correlation"]["r_max_used"] == 8.0

@@ -87,7 +87,7 @@ def test_square_and_line_points():
 
 
 def test_fit_through_two_points_has_no_error():
-    from flocking.analysis._base import fit_line
+    from flocking.analysis.base import fit_line
 
     assert math.isnan(fit_line([0.0, 1.0], [1.0, 3.0])[2])
     assert fit_line([0.0, 1.0, 2.0], [1.0, 3.0, 5.0])[2] == 0.0

@@ -127,7 +127,7 @@ def test_many_frames_are_fast():
     # 1001 frames x 2000 particles took 105 s with a Python loop over pairs of frames
     rng = np.random.default_rng(5)
     pos = np.cumsum(rng.normal(0, 0.3, (1001, 2000, 2)), axis=0)
-    frames = fa._input.Frames([fa._input.Snapshot(t, [100.0, 100.0], p) for t, p in enumerate(pos)],
+    frames = fa.snapshots.Frames([fa.snapshots.Snapshot(t, [100.0, 100.0], p) for t, p in enumerate(pos)],
                               lambda f: f, np.arange(1001))
     fa.MeanSquareDisplacement().compute(frames[:3])  # compile
     t0 = time.perf_counter()

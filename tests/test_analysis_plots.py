@@ -16,8 +16,8 @@ def computed():
     pts = rng.uniform(0, 20, (3000, 2))
     pts[:1000, 0] = rng.uniform(5, 8, 1000)  # a band, so the profile has one to draw
     u = np.tile([1.0, 0.0], (3000, 1)) + 0.3 * rng.normal(size=(3000, 2))
-    frames = [fa._input.from_box_points(20.0, (pts + [0.2 * t, 0.0]) % 20, u, step=t) for t in range(4)]
-    typed = [fa._input.Snapshot(f.step, f.box, f.positions, f.headings, typeid=np.arange(3000) % 2, types=["A", "B"])
+    frames = [fa.snapshots.from_box_points(20.0, (pts + [0.2 * t, 0.0]) % 20, u, step=t) for t in range(4)]
+    typed = [fa.snapshots.Snapshot(f.step, f.box, f.positions, f.headings, typeid=np.arange(3000) % 2, types=["A", "B"])
              for f in frames]
     return [fa.PolarOrder().compute(0.5 + 0.01 * rng.standard_normal(200), n=5),
             fa.NumberFluctuations().compute(frames), fa.VelocityCorrelation(r_max=5).compute(frames),
@@ -100,7 +100,7 @@ def test_legends_state_what_the_summary_states(computed):
     assert any(t.startswith("$D = ") for t in texts)
     assert profile.band_count == 1
     texts = [t.get_text() for t in profile.plot().get_legend().get_texts()]
-    assert "band (equivalent width)" in texts
+    assert f"band, width {profile.band_widths[0]:.3g}" in texts
 
 
 def test_every_figure_renders_at_every_size(computed, tmp_path):

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 import flocking
 import flocking.analysis as fa
 from flocking.analysis import order
-from flocking.analysis._input import Snapshot
+from flocking.analysis.snapshots import Snapshot
 from flocking.cli import main
 from flocking.observables import extra_values, moment_sums
 

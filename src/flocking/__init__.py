@@ -29,6 +29,26 @@ from .writers import CheckpointWriter, GSDWriter, ObservablesWriter, Writer  # n
 __version__ = "0.1.0"
 
 
+def _frame_png(frame: Frame) -> bytes:
+    """A notebook shows a frame as a picture."""
+    from .viz.notebook import frame_png
+
+    return frame_png(frame)
+
+
+def _trajectory_html(traj: Trajectory) -> str:
+    """A notebook plays a trajectory as a small H.264 video."""
+    from .viz.notebook import trajectory_html
+
+    return trajectory_html(traj)
+
+
+# The package joins the data to its pictures: trajectory.py, which the analysis and the
+# pictures both read, imports neither (an import from it into viz closed a circle through them).
+Frame._repr_png_ = _frame_png
+Trajectory._repr_html_ = _trajectory_html
+
+
 def __getattr__(name: str):
     # submodules with heavy dependencies (matplotlib, dask, ...) load when first used
     if name in ("analysis", "viz", "sweep"):

@@ -9,6 +9,10 @@ their names: one type ``"A"`` when the file has none, as HOOMD, freud and OVITO 
 and the run's ``walls`` (per axis) and ``obstacles`` (rows: centre in the frame's centred
 coordinates, then radius), which ``flocking`` writes in frame 0 and every frame carries.
 
+This module reads data and draws nothing, so that the analysis and the pictures can both
+read it: a notebook shows frames and trajectories as pictures through ``_repr_png_`` and
+``_repr_html_``, which the package (``flocking/__init__.py``) joins to :mod:`flocking.viz`.
+
 >>> import flocking, tempfile, os
 >>> path = os.path.join(tempfile.mkdtemp(), "t.gsd")
 >>> sim = flocking.Simulation(flocking.Model(n=10, box=5.0))
@@ -105,12 +109,6 @@ class Frame:
         """``box, points = frame``: the ``(box, points)`` pair that freud accepts."""
         return iter((self.box, self.points))
 
-    def _repr_png_(self) -> bytes:
-        """A notebook shows a frame as a picture."""
-        from .viz.notebook import frame_png
-
-        return frame_png(self)
-
     def __repr__(self) -> str:
         return f"Frame(step={self.step}, n={self.n}, dim={self.dim}, box={self.box_lengths.tolist()})"
 
@@ -155,7 +153,7 @@ class Trajectory:
         self.path = os.fspath(path)
         self._file = gsd.hoomd.open(self.path, mode="r")
         self._closed = False
-        self._static = None
+        self._geometry = None
 
     def __len__(self) -> int:
         return len(self._file)
@@ -163,18 +161,20 @@ class Trajectory:
     def __getitem__(self, index):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
-        return _frame(self._file[index], self._static_parts())
+        return read_frame(self._file[index], self.geometry)
 
-    def _static_parts(self) -> dict:
-        """Walls and obstacles, read from frame 0 once and given to every frame."""
-        if self._static is None:
-            self._static = {}
-            if len(self):
-                first = self._file[0]
-                log = {"log/" + key: value for key, value in first.log.items()}
-                parts = static_parts(log, int(first.configuration.dimensions))
-                self._static = {key: parts[key] for key in ("walls", "obstacles") if key in parts}
-        return self._static
+    @property
+    def gsd(self) -> gsd.hoomd.HOOMDTrajectory:
+        """The open ``gsd.hoomd`` trajectory this reads (every chunk of the file)."""
+        return self._file
+
+    @property
+    def geometry(self) -> dict:
+        """The ``walls`` and ``obstacles`` arguments of every :class:`Frame`, read from
+        frame 0 once (empty for a file without them)."""
+        if self._geometry is None:
+            self._geometry = geometry_of(self._file)
+        return self._geometry
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
@@ -205,12 +205,6 @@ class Trajectory:
         return (f"Trajectory({self.path!r}, frames={len(self)}, steps {first.step}..{last.step}, "
                 f"n={last.n}, dim={last.dim}, box={last.box_lengths.tolist()})")
 
-    def _repr_html_(self) -> str:
-        """A notebook plays a trajectory as a small H.264 video."""
-        from .viz.notebook import trajectory_html
-
-        return trajectory_html(self)
-
     def close(self) -> None:
         self._file.close()
         self._closed = True
@@ -222,7 +216,20 @@ class Trajectory:
         self.close()
 
 
-def _frame(f: gsd.hoomd.Frame, static: dict | None = None) -> Frame:
+def geometry_of(frames: gsd.hoomd.HOOMDTrajectory) -> dict:
+    """The ``walls`` and ``obstacles`` of a ``gsd.hoomd`` trajectory, from the log of
+    its frame 0, as :class:`Frame` arguments (empty when it has none)."""
+    if len(frames) == 0:
+        return {}
+    first = frames[0]
+    log = {"log/" + key: value for key, value in first.log.items()}
+    parts = static_parts(log, int(first.configuration.dimensions))
+    return {key: parts[key] for key in ("walls", "obstacles") if key in parts}
+
+
+def read_frame(f: gsd.hoomd.Frame, geometry: dict | None = None) -> Frame:
+    """A :class:`Frame` of a ``gsd.hoomd`` frame, with the run's ``geometry`` (the
+    ``walls`` and ``obstacles`` of :func:`geometry_of`)."""
     dim = int(f.configuration.dimensions)
     box = np.asarray(f.configuration.box, dtype=np.float64)
     n = int(f.particles.N)
@@ -240,7 +247,7 @@ def _frame(f: gsd.hoomd.Frame, static: dict | None = None) -> Frame:
     types = _type_names(types) if types else ["A"]
     types += [str(i) for i in range(len(types), int(np.max(typeid, initial=0)) + 1)]  # ids without a name
     return Frame(f.configuration.step, dim, box[:3], points, velocities, typeid=typeid, types=types,
-                 **(static or {}))
+                 **(geometry or {}))
 
 
 def _body_x_axis(q: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ frame, a ``(box, points)`` pair, or a list of frames. Steps become time through 
 True
 """
 
-from ._base import NotComputedError
+from .base import NotComputedError
 from .boxcount import BoxCounting
 from .clusters import Clusters
 from .correlation import VelocityCorrelation

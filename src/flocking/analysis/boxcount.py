@@ -13,6 +13,11 @@ through two sizes has no degree of freedom left and so no error (NaN), and a def
 that holds only two sizes (too few points for their dimension, such as 1000 points in 3D)
 raises a ``RuntimeWarning``.
 
+Walls change nothing: the boxes tile the box from its corner, and none spans a side.
+Obstacles are counted as box, empty: ``notes`` says what share of the box they cover
+(at sides well below an obstacle's size ``N(eps)`` drops by that share, a constant factor
+that leaves the slope as it is; at sides comparable to it the curve bends).
+
 >>> import numpy as np
 >>> i, j = np.indices((64, 64))
 >>> sierpinski = (i & j) == 0                 # Pascal's triangle mod 2
@@ -28,8 +33,9 @@ import warnings
 import numpy as np
 
 from ..model import ParameterError
-from . import _input
-from ._base import Analysis, fit_line, format_value, legend, log_ticks, result
+from ..space import Space
+from . import snapshots
+from .base import Analysis, fit_line, format_value, legend, log_ticks, result
 
 
 def image_counts(image: np.ndarray):
@@ -76,6 +82,14 @@ def point_counts(points: np.ndarray, origin, length: float, levels: int):
     return length / 2.0 ** np.arange(len(counts)), counts
 
 
+def obstacle_note(space: Space) -> str:
+    """What box counting does with the obstacles of ``space``."""
+    share = float(space.in_obstacle(space.grid()).mean())
+    return (f"obstacles cover {share:.1%} of the box and are counted as box: the boxes inside them stay empty, "
+            "which lowers N(eps) by that share at sides well below their size (the slope holds) and bends it at "
+            "sides comparable to it")
+
+
 class BoxCounting(Analysis):
     """Box-counting dimension.
 
@@ -96,7 +110,7 @@ class BoxCounting(Analysis):
         if fit_range is not None and (len(fit_range) != 2 or not 0 < fit_range[0] < fit_range[1]):
             raise ParameterError(f"fit_range: must be (eps_min, eps_max) with 0 < eps_min < eps_max "
                                  f"(got {fit_range!r})")
-        _input.window_start(start, [0], 1)
+        snapshots.window_start(start, [0], 1)
         self.fit_range, self.start = fit_range, start
 
     def parameters(self) -> dict:
@@ -112,6 +126,7 @@ class BoxCounting(Analysis):
 
     def compute(self, system, box=None) -> BoxCounting:
         arr = system if isinstance(system, np.ndarray) else None
+        notes = []
         if arr is not None and arr.dtype == bool:
             if arr.ndim not in (2, 3) or not arr.any():
                 raise ParameterError(f"image: must be a 2D or 3D boolean array with some True pixel "
@@ -133,11 +148,13 @@ class BoxCounting(Analysis):
                     lengths = np.broadcast_to(np.asarray(box, float), (points.shape[1],))
                     if np.any(lengths <= 0):
                         raise ParameterError(f"box: side lengths must be positive (got {box!r})")
-                    points = _input.wrap(points.copy(), lengths)
+                    points = Space(tuple(lengths)).inside(points)
                     origin, length = np.zeros(points.shape[1]), float(lengths.min())
             else:
-                frame = _input.select(_input.as_frames(system), self.start)[-1]
+                frame = snapshots.select(snapshots.as_frames(system), self.start)[-1]
                 points, origin, length = frame.positions, np.zeros(frame.dim), float(frame.box.min())
+                if frame.space.obstacles:
+                    notes.append(obstacle_note(frame.space))
             n = len(points)
             levels = int(min(max(np.ceil(np.log2(max(n, 2)) / points.shape[1]) + 8, 4), 60 // points.shape[1] - 2))
             scales, counts = point_counts(points, origin, length, levels)
@@ -156,8 +173,12 @@ class BoxCounting(Analysis):
                           f"and {scales[fitted].min():.4g}) before the count saturates, so the dimension has no "
                           "error estimate; use more points, or give fit_range", RuntimeWarning, stacklevel=2)
         slope, intercept, err = fit_line(np.log(1 / scales[fitted]), np.log(counts[fitted]))
+        if np.isnan(err):
+            notes.append("dimension_error: NaN, the fit goes through two box sizes only, which leave no degree of "
+                         "freedom to estimate it")
         self._store(scales=scales, counts=counts, fitted=fitted, dimension=slope, dimension_error=err,
-                    intercept=intercept, fit_range_used=(float(scales[fitted].min()), float(scales[fitted].max())))
+                    intercept=intercept, fit_range_used=(float(scales[fitted].min()), float(scales[fitted].max())),
+                    notes=notes)
         return self
 
     def plot(self, ax=None, theme=None):

@@ -1,7 +1,10 @@
-"""Clusters: particles linked when closer than ``radius`` (periodic, minimum image).
+"""Clusters: particles linked when closer than ``radius``.
 
-Union-find over a numba cell list, O(N) per frame. Labels are numbered by decreasing
-size (0 is the largest cluster; ties by the lowest particle index).
+Distances are those of the engine (:class:`flocking.space.Space`): the minimum image along
+periodic axes, none across a wall, so particles facing each other across a wall are not
+linked. Obstacles hide no neighbour in the engine, so a link may cross one. Union-find
+over the pairs of a cell list, O(N) per frame. Labels are numbered by decreasing size (0
+is the largest cluster; ties by the lowest particle index).
 
 Over the frames of the window, with ``n_s`` the number of clusters of size ``s`` summed
 over all of them: the number-average size ``sum s n_s / sum n_s`` (the mean size of a
@@ -17,19 +20,57 @@ frame and averaged over the frames.
 ([0, 0, 1, 1, 2], [2, 2, 1])
 >>> cl.number_average_size, cl.weight_average_size    # 5 / 3 and (4 + 4 + 1) / 5
 (1.6666666666666667, 1.8)
+>>> walled = Space((10.0, 10.0), walls=(True, False))
+>>> Clusters(radius=1.0).compute((walled, pts)).sizes.tolist()  # a wall at x = 0 parts them
+[2, 1, 1, 1]
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
-from . import _cells, _input
-from ._base import Analysis, format_value, legend, log_ticks, positive, result
+from ..space import Space
+from . import snapshots
+from .base import Analysis, format_value, legend, log_ticks, pair_notes, positive, result
 
 
-def labels(positions, box, radius: float) -> np.ndarray:
-    """Cluster label of each particle, 0 for the largest cluster."""
-    roots = _cells.cluster_roots(positions, box, radius)
+@numba.njit(cache=True)
+def _find(parent, i):
+    root = i
+    while parent[root] != root:
+        root = parent[root]
+    while parent[i] != root:  # path compression
+        parent[i], i = root, parent[i]
+    return root
+
+
+@numba.njit(cache=True)
+def _join(parent, first, second):
+    """Union of the sets of ``first[k]`` and ``second[k]`` for every k (the lower root wins)."""
+    for k in range(len(first)):
+        a = _find(parent, first[k])
+        b = _find(parent, second[k])
+        if a < b:
+            parent[b] = a
+        elif b < a:
+            parent[a] = b
+
+
+@numba.njit(cache=True)
+def _roots(parent):
+    for i in range(len(parent)):
+        parent[i] = _find(parent, i)
+    return parent
+
+
+def labels(space: Space, positions, radius: float) -> np.ndarray:
+    """Cluster label of each particle, 0 for the largest cluster: particles closer than
+    ``radius`` in ``space`` are linked."""
+    parent = np.arange(len(positions))
+    for pairs in space.pair_blocks(positions, radius):
+        _join(parent, pairs.i, pairs.j)
+    roots = _roots(parent)
     uniq, first, inverse, sizes = np.unique(roots, return_index=True, return_inverse=True, return_counts=True)
     rank = np.empty(len(uniq), np.int64)
     rank[np.lexsort((first, -sizes))] = np.arange(len(uniq))
@@ -53,8 +94,8 @@ class Clusters(Analysis):
 
     def __init__(self, radius=None, start=None, frames=None):
         self.radius = positive("radius", radius, allow_none=True)
-        _input.window_start(start, [0], 1)
-        self.start, self.frames = start, _input.check_count("frames", frames)
+        snapshots.window_start(start, [0], 1)
+        self.start, self.frames = start, snapshots.check_count("frames", frames)
 
     def parameters(self) -> dict:
         return {"radius": self.radius, "start": self.start, "frames": self.frames}
@@ -75,12 +116,12 @@ class Clusters(Analysis):
     def compute(self, system) -> Clusters:
         radius = self.radius
         if radius is None:
-            model = _input.model_of(system)
+            model = snapshots.model_of(system)
             radius = model.radius if model is not None else 1.0
-        frames = _input.select(_input.as_frames(system), self.start, self.frames)
+        frames = snapshots.select(snapshots.as_frames(system), self.start, self.frames)
         all_sizes, fractions = [], []
         for f in frames:
-            lab = labels(f.positions, f.box, radius)
+            lab = labels(f.space, f.positions, radius)
             sizes = np.bincount(lab)
             all_sizes.append(sizes)
             fractions.append(sizes[0] / f.n)
@@ -91,7 +132,8 @@ class Clusters(Analysis):
                     number_average_size=float(mass / counts.sum()),
                     weight_average_size=float((values.astype(float) ** 2 * counts).sum() / mass),
                     size_values=values, size_counts_total=counts, size_counts_per_frame=counts / len(frames),
-                    radius_used=float(radius), num_frames=len(frames))
+                    radius_used=float(radius), num_frames=len(frames),
+                    notes=pair_notes(frames[-1].space, "no link"))
         return self
 
     def plot(self, ax=None, theme=None):

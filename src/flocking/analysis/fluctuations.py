@@ -9,6 +9,11 @@ error). Its error is the larger of the fit's formal error (scaled by the scatter
 jackknife over frames (when there are at least four). Default sizes stop at ``m = 8``
 (at most 1/64 of the box in 2D), so that the fixed total count barely bends the curve.
 
+Walls and obstacles: sub-boxes tile the box from its corner and never wrap, so none spans
+a wall or a periodic side. A sub-box that overlaps an obstacle (or a periodic image of
+one) is left out, so every count is of the same free area and the counts of a
+homogeneous state share one mean; ``notes`` says how many were kept.
+
 >>> import numpy as np
 >>> rng = np.random.default_rng(2)
 >>> frames = [(100.0, rng.uniform(0, 100, (20000, 2))) for _ in range(4)]
@@ -22,8 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..model import ParameterError
-from . import _input
-from ._base import Analysis, fit_line, format_value, legend, log_ticks, result
+from ..space import Space
+from . import snapshots
+from .base import Analysis, fit_line, format_value, legend, log_ticks, result
 
 
 def default_sizes(box: np.ndarray, n: int, count: int = 24) -> np.ndarray:
@@ -34,26 +40,57 @@ def default_sizes(box: np.ndarray, n: int, count: int = 24) -> np.ndarray:
     return np.min(box) / ms[::-1].astype(float)
 
 
-def _count_moments(positions, box, side):
-    """Sums of ``n^k`` (k = 0..4) over the whole sub-boxes of side ``side``."""
-    cells = np.floor(box / side * (1 + 1e-12)).astype(np.int64)
-    if np.any(cells < 1):
-        return None
-    idx = np.floor(positions / side).astype(np.int64)
-    inside = np.all(idx < cells, axis=1)
-    flat = np.ravel_multi_index(tuple(idx[inside].T), tuple(cells))
-    counts = np.bincount(flat, minlength=int(np.prod(cells))).astype(float)
-    return np.array([counts.size, counts.sum(), (counts**2).sum(), (counts**3).sum(), (counts**4).sum()])
+class SubBoxes:
+    """The whole sub-boxes of side ``side`` in ``space`` (``shape`` per axis, or ``None``
+    when the side exceeds the box), and which of them no obstacle touches (``keep``)."""
+
+    def __init__(self, space: Space, side: float):
+        self.side = side
+        cells = np.floor(space.lengths / side * (1 + 1e-12)).astype(np.int64)
+        self.shape = tuple(cells) if np.all(cells >= 1) else None
+        self.keep = None
+        if self.shape is not None:
+            self.keep = np.ones(int(np.prod(cells)), bool)
+            if space.obstacles:
+                corners = np.indices(self.shape).reshape(space.dim, -1).T * side
+                self.keep = ~space.boxes_touch_obstacle(corners, side)
+
+    def moments(self, positions: np.ndarray) -> np.ndarray:
+        """Sums of ``n^k`` (k = 0..4) over the kept sub-boxes."""
+        idx = np.floor(positions / self.side).astype(np.int64)
+        inside = np.all(idx < self.shape, axis=1)
+        flat = np.ravel_multi_index(tuple(idx[inside].T), self.shape)
+        counts = np.bincount(flat, minlength=len(self.keep))[self.keep].astype(float)
+        return np.array([counts.size, counts.sum(), (counts**2).sum(), (counts**3).sum(), (counts**4).sum()])
 
 
 def _stats(m):
-    """``(mean, dn, error of log dn)`` from pooled sums of powers."""
+    """``(mean, dn, error of log dn)`` from pooled sums of powers (NaN without a box)."""
     k, s1, s2, s3, s4 = m
+    if k == 0:
+        return np.nan, np.nan, np.inf
     mean = s1 / k
     var = max(s2 / k - mean * mean, 0.0)
     mu4 = s4 / k - 4 * mean * s3 / k + 6 * mean**2 * s2 / k - 3 * mean**4
     sigma = 0.5 * np.sqrt(max(mu4 - var * var, 0.0) / k) / var if var > 0 else np.inf
     return mean, np.sqrt(var * k / max(k - 1, 1)), sigma
+
+
+def fluctuation_notes(space: Space, boxes, fitted, alpha: float) -> list[str]:
+    """The sub-boxes that obstacles left out, and why ``alpha`` is NaN."""
+    notes = []
+    if space.obstacles:
+        big, small = max(boxes, key=lambda b: b.side), min(boxes, key=lambda b: b.side)
+        notes.append(f"sub-boxes that overlap an obstacle are left out: kept {big.keep.sum()} of {len(big.keep)} "
+                     f"at the largest side {big.side:.4g}, {small.keep.sum()} of {len(small.keep)} at the smallest "
+                     f"{small.side:.4g}")
+        lost = [f"{b.side:.4g}" for b in boxes if not b.keep.any()]
+        if lost:
+            notes.append(f"sides {', '.join(lost)}: every sub-box overlaps an obstacle, so they give no count")
+    if np.isnan(alpha):
+        notes.append(f"alpha: NaN, {int(fitted.sum())} size{'s' * int(fitted.sum() != 1)} with counts that "
+                     "fluctuate in the fit range (a slope needs two); give other sizes or fit_range")
+    return notes
 
 
 class NumberFluctuations(Analysis):
@@ -63,7 +100,7 @@ class NumberFluctuations(Analysis):
     ----------
     sizes: sub-box sides (default: see the module); a side larger than the box is refused.
     fit_range: ``(n_min, n_max)``: fit only sizes whose ``<n>`` lies in it (default: all).
-    start, frames: the window (see :func:`flocking.analysis._input.select`).
+    start, frames: the window (see :func:`flocking.analysis.snapshots.select`).
     """
 
     _keys = ("sizes", "mean", "std", "alpha", "alpha_error", "fitted", "num_frames")
@@ -76,9 +113,9 @@ class NumberFluctuations(Analysis):
         if fit_range is not None:
             if len(fit_range) != 2 or not 0 <= fit_range[0] < fit_range[1]:
                 raise ParameterError(f"fit_range: must be (n_min, n_max) with 0 <= n_min < n_max (got {fit_range!r})")
-        _input.window_start(start, [0], 1)
+        snapshots.window_start(start, [0], 1)
         self.sizes_requested, self.fit_range = sizes, fit_range
-        self.start, self.frames = start, _input.check_count("frames", frames)
+        self.start, self.frames = start, snapshots.check_count("frames", frames)
 
     def parameters(self) -> dict:
         return {"sizes": self.sizes_requested, "fit_range": self.fit_range, "start": self.start,
@@ -95,17 +132,17 @@ class NumberFluctuations(Analysis):
     num_frames = result("num_frames", "Number of frames averaged.")
 
     def compute(self, system) -> NumberFluctuations:
-        frames = _input.select(_input.as_frames(system), self.start, self.frames)
+        frames = snapshots.select(snapshots.as_frames(system), self.start, self.frames)
         first = frames[0]
         sizes = self.sizes_requested if self.sizes_requested is not None else default_sizes(first.box, first.n)
+        boxes = [SubBoxes(first.space, s) for s in sizes]
+        if any(b.shape is None for b in boxes):
+            raise ParameterError(f"sizes: every side must fit in the box {first.box.tolist()} (got {sizes.tolist()})")
         per_frame = []
         for f in frames:
             if f.dim != first.dim or np.any(f.box != first.box):
                 raise ParameterError("system: every frame must have the same box")
-            rows = [_count_moments(f.positions, f.box, s) for s in sizes]
-            if any(r is None for r in rows):
-                raise ParameterError(f"sizes: every side must fit in the box {f.box.tolist()} (got {sizes.tolist()})")
-            per_frame.append(np.array(rows))
+            per_frame.append(np.array([b.moments(f.positions) for b in boxes]))
         per_frame = np.array(per_frame)  # (frames, sizes, 5)
         stats = np.array([_stats(m) for m in per_frame.sum(axis=0)])
         mean, std, sigma = stats.T
@@ -125,8 +162,9 @@ class NumberFluctuations(Analysis):
             slopes = np.array(slopes)
             g = len(groups)
             error = max(error, float(np.sqrt((g - 1) / g * np.sum((slopes - slopes.mean()) ** 2))))
+        notes = fluctuation_notes(first.space, boxes, fitted, alpha)
         self._store(sizes=np.asarray(sizes, float), mean=mean, std=std, log_error=sigma, fitted=fitted,
-                    alpha=alpha, alpha_error=error, intercept=intercept, num_frames=nf)
+                    alpha=alpha, alpha_error=error, intercept=intercept, num_frames=nf, notes=notes)
         return self
 
     @staticmethod

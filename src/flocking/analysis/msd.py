@@ -1,8 +1,9 @@
 """Mean square displacement of unwrapped positions, by FFT.
 
-Positions are unwrapped from successive frames by the minimum image: the displacement
-between two frames is taken as the shortest periodic one, which is right as long as no
-particle moves half a box side or more between frames. For a flocking run that bound is
+Positions are unwrapped from successive frames by the minimum image along periodic axes
+(between walls a coordinate needs no unwrapping): the displacement between two frames is
+taken as the shortest periodic one, which is right as long as no particle moves half a
+periodic box side or more between frames. For a flocking run that bound is
 known, ``speed x dt x (steps between frames) < L / 2``, and frames further apart are
 refused (:class:`~flocking.ParameterError`). For other files it is estimated from the
 data: when the largest minimum-image displacement between successive frames exceeds a
@@ -38,8 +39,8 @@ import numba
 import numpy as np
 
 from ..model import ParameterError
-from . import _input
-from ._base import Analysis, legend, log_ticks, positive, result
+from . import snapshots
+from .base import Analysis, legend, log_ticks, positive, result
 
 #: Bytes of FFT work space per chunk of particles.
 _CHUNK_BYTES = 1 << 26
@@ -57,8 +58,7 @@ def unwrap(frames) -> tuple[np.ndarray, np.ndarray]:
         f = frames[t]
         if f.n != first.n or np.any(f.box != first.box):
             raise ParameterError("system: every frame must have the same particles and box")
-        step = f.positions - prev
-        step -= f.box * np.round(step / f.box)
+        step = f.space.displacement(prev, f.positions)  # the minimum image along periodic axes only
         np.maximum(largest, np.abs(step).max(axis=0), out=largest)
         out[t] = out[t - 1] + step
         prev = f.positions
@@ -121,12 +121,15 @@ def direct_sums(pos: np.ndarray, where: np.ndarray, length: int) -> tuple[np.nda
     return sums, np.bincount(lags[lags >= 0], minlength=length).astype(float)
 
 
-def refuse_far_frames(model, gap: int, box: np.ndarray) -> None:
-    """Refuse frames ``gap`` steps apart when the run's particles can move half the box."""
-    half = float(box.min()) / 2
+def refuse_far_frames(model, gap: int, space) -> None:
+    """Refuse frames ``gap`` steps apart when the run's particles can move half the box
+    along a periodic axis."""
+    if not space.periodic.any():
+        return  # nothing to unwrap between walls
+    half = float(space.lengths[space.periodic].min()) / 2
     reach = model.speed * model.dt * gap
     if reach >= half:
-        every = _input.steps_within_half(model, 2 * half)
+        every = snapshots.steps_within_half(model, 2 * half)
         advice = (f"use frames at most {every} steps apart (flocking run --every {every})" if every else
                   "speed x dt alone reaches half the box: no frame spacing can be unwrapped")
         raise ParameterError(f"system: frames {gap} steps apart let a particle move up to {reach:.4g} "
@@ -134,9 +137,11 @@ def refuse_far_frames(model, gap: int, box: np.ndarray) -> None:
                              f"positions cannot be unwrapped for the MSD; {advice}")
 
 
-def warn_far_frames(largest: np.ndarray, box: np.ndarray) -> None:
-    """Warn when the largest displacement between frames exceeds a quarter of a box side."""
-    ratio = largest / box
+def warn_far_frames(largest: np.ndarray, space) -> None:
+    """Warn when the largest displacement between frames exceeds a quarter of a box side
+    along a periodic axis."""
+    box = space.lengths
+    ratio = np.where(space.periodic, largest / box, 0.0)
     if np.any(ratio > 0.25):
         a = int(np.argmax(ratio))
         warnings.warn(f"MeanSquareDisplacement: particles move up to {largest[a]:.4g} between frames, more than "
@@ -164,9 +169,9 @@ class MeanSquareDisplacement(Analysis):
         if max_lag is not None and (isinstance(max_lag, bool) or not isinstance(max_lag, (int, np.integer))
                                     or max_lag < 1):
             raise ParameterError(f"max_lag: must be a whole number of steps >= 1 (got {max_lag!r})")
-        _input.window_start(start, [0], 1)
+        snapshots.window_start(start, [0], 1)
         self.max_lag, self.dt = max_lag, positive("dt", dt, allow_none=True)
-        self.start, self.frames = start, _input.check_count("frames", frames)
+        self.start, self.frames = start, snapshots.check_count("frames", frames)
 
     def parameters(self) -> dict:
         return {"max_lag": self.max_lag, "dt": self.dt, "start": self.start, "frames": self.frames}
@@ -181,13 +186,13 @@ class MeanSquareDisplacement(Analysis):
     num_frames = result("num_frames", "Number of frames used.")
 
     def compute(self, system, steps=None) -> MeanSquareDisplacement:
-        frames = _input.as_frames(system)
+        frames = snapshots.as_frames(system)
         if steps is not None:
             steps = np.asarray(steps, dtype=np.int64)
             if steps.shape != (len(frames),) or np.any(np.diff(steps) <= 0):
                 raise ParameterError(f"steps: must be {len(frames)} increasing whole numbers")
-            frames = _input.Frames(frames, lambda f: f, steps, frames.model)
-        frames = _input.select(frames, self.start, self.frames)
+            frames = snapshots.Frames(frames, lambda f: f, steps, frames.model)
+        frames = snapshots.select(frames, self.start, self.frames)
         steps = np.asarray(frames.steps)
         if len(frames) < 2:
             raise ParameterError(f"system: the MSD needs at least two frames (got {len(frames)})")
@@ -195,10 +200,10 @@ class MeanSquareDisplacement(Analysis):
             raise ParameterError("system: frame steps must increase (give steps=... for inputs without steps)")
         gaps = np.diff(steps)
         if frames.model is not None:  # refuse before reading every frame
-            refuse_far_frames(frames.model, int(gaps.max()), frames[0].box)
+            refuse_far_frames(frames.model, int(gaps.max()), frames[0].space)
         pos, largest = unwrap(frames)
         if frames.model is None:
-            warn_far_frames(largest, frames[0].box)
+            warn_far_frames(largest, frames[0].space)
         pos -= pos.mean(axis=0)  # small numbers: the FFT's rounding is relative to them
         unit = int(np.gcd.reduce(gaps))
         where = (steps - steps[0]) // unit
@@ -210,7 +215,7 @@ class MeanSquareDisplacement(Analysis):
         keep = (pairs > 0) & (lags > 0)
         if self.max_lag is not None:
             keep &= lags <= self.max_lag
-        dt = _input.time_step(self.dt, frames.model)
+        dt = snapshots.time_step(self.dt, frames.model)
         self._store(lag_steps=lags[keep], lag_times=lags[keep] * dt, msd=sums[keep] / (pairs[keep] * pos.shape[1]),
                     origins=pairs[keep].astype(np.int64), dt_used=dt, max_frame_displacement=largest,
                     num_frames=f)

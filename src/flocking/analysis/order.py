@@ -38,8 +38,8 @@ import numpy as np
 
 from ..model import ParameterError
 from ..observables import polar_moments
-from . import _input
-from ._base import Analysis, format_value, legend, positive, result
+from . import snapshots
+from .base import Analysis, format_value, legend, positive, result
 
 
 def autocorrelation(x: np.ndarray) -> np.ndarray:
@@ -180,6 +180,20 @@ def polar_order(headings: np.ndarray) -> float:
     return float(np.linalg.norm(headings.sum(axis=0)) / len(headings))
 
 
+def order_notes(moments: dict, errors: dict, n, samples: int, block: int) -> list[str]:
+    """Why any moment or error of a window is NaN."""
+    notes = []
+    if n is None:
+        notes.append("susceptibility, susceptibility_error: NaN, the number of particles is not known (give n)")
+    if math.isnan(moments["binder"]):
+        notes.append("binder, binder_error: NaN, the order is 0 throughout the window (<phi^2> = 0)")
+    if samples // block < 2:
+        nan = [f"{key}_error" for key in ("phi2", "phi4", "susceptibility", "binder")]
+        notes.append(f"{', '.join(nan)}: NaN, the window's {samples} values make fewer than two blocks of "
+                     f"{block} (at least 4 tau) for the jackknife")
+    return notes
+
+
 class _Order(Analysis):
     """An order parameter's time series and its statistics over a window (see the module);
     subclasses name the quantity, its ``observables.csv`` column and its value for a frame."""
@@ -195,7 +209,7 @@ class _Order(Analysis):
 
     def __init__(self, start=None, dt=None, species: str | None = None):
         if start != "auto":
-            _input.window_start(start, [0], 1)  # validate
+            snapshots.window_start(start, [0], 1)  # validate
         if species is not None and (not isinstance(species, str) or not species):
             raise ParameterError(f"species: must be the name of a species (got {species!r})")
         self.start = start
@@ -247,7 +261,7 @@ class _Order(Analysis):
         if self.start == "auto":
             first, rule = _auto_window(phi)
         else:
-            first = _input.window_start(self.start, steps, len(phi))
+            first = snapshots.window_start(self.start, steps, len(phi))
             rule = "all" if self.start is None else "given"
         window = np.zeros(len(phi), bool)
         window[first:] = True
@@ -272,7 +286,7 @@ class _Order(Analysis):
             warnings.warn(f"{name}{of}: the window does not look equilibrated: the mean of its second half "
                           f"differs from the first by {abs(drift):.1f} errors; discard more (start={suggested})",
                           RuntimeWarning, stacklevel=2)
-        dt = _input.time_step(self.dt, model)
+        dt = snapshots.time_step(self.dt, model)
         spacing = float(np.median(np.diff(steps[window])))
         self._store(steps=steps, times=steps * dt, series=phi, window=window, window_start=int(steps[first]),
                     window_rule=rule, species=self.species, n=n, samples=int(x.size), mean=moments["mean"],
@@ -280,7 +294,8 @@ class _Order(Analysis):
                     phi4_error=errors["phi4"], susceptibility=moments["susceptibility"],
                     susceptibility_error=errors["susceptibility"], binder=moments["binder"],
                     binder_error=errors["binder"], tau=tau, tau_time=tau * spacing * dt, drift=float(drift),
-                    equilibrated=bool(equilibrated), suggested_start=suggested, dt_used=dt)
+                    equilibrated=bool(equilibrated), suggested_start=suggested, dt_used=dt,
+                    notes=order_notes(moments, errors, n, len(x), block))
         return self
 
     def _what(self) -> str:
@@ -299,7 +314,7 @@ class _Order(Analysis):
             if csv_path.endswith(".csv") and (os.path.exists(csv_path) or not folder):
                 if not os.path.exists(csv_path):
                     raise ParameterError(f"system: no such file {csv_path!r}")
-                model = _input.model_of(path) if folder else None
+                model = snapshots.model_of(path) if folder else None
                 self._check_species(model.species_names if model is not None else None)
                 read = read_column(csv_path, column)
                 if read is not None:
@@ -315,7 +330,7 @@ class _Order(Analysis):
                 raise ParameterError("species: a series of values holds no species; give a run or its frames")
             values = np.asarray(system, dtype=float)
             return np.arange(len(values)), values, n, None
-        frames = _input.as_frames(system)
+        frames = snapshots.as_frames(system)
         self._check_species(frames.model.species_names if frames.model is not None else None)
         values = []
         for f in frames:
@@ -441,7 +456,7 @@ def species_names(system) -> tuple[str, ...]:
         path = os.fspath(system)
         csv_path = os.path.join(path, "observables.csv") if os.path.isdir(path) else path
         if csv_path.endswith(".csv"):
-            model = _input.model_of(path) if os.path.isdir(path) else None
+            model = snapshots.model_of(path) if os.path.isdir(path) else None
             if model is not None:
                 return model.species_names
             if os.path.exists(csv_path):
@@ -449,7 +464,7 @@ def species_names(system) -> tuple[str, ...]:
                 return tuple(c[len(prefix):] for c in csv_columns(csv_path) if c.startswith(prefix))
             if not os.path.isdir(path):
                 raise ParameterError(f"system: no such file {csv_path!r}")
-    frames = _input.as_frames(system)
+    frames = snapshots.as_frames(system)
     if frames.model is not None:
         return frames.model.species_names
     types = frames[0].types if len(frames) else None

@@ -138,7 +138,7 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
       flocking analyze runs/run-0001 --only polar,fluctuations --start 0.5
       flocking analyze traj.gsd --frames 20 --r-max 20 --out results --theme light --format pdf
     """
-    from ..analysis import _input
+    from ..analysis import snapshots
     from ..viz import style
     from ..viz.colors import get_theme
 
@@ -158,11 +158,11 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     if not os.path.exists(run_dir):
         raise ParameterError(f"RUN_DIR {run_dir!r}: no such folder or file")
     folder = run_dir if os.path.isdir(run_dir) else os.path.dirname(os.path.abspath(run_dir))
-    gsd_path = _input.trajectory_path(run_dir) if (not os.path.isdir(run_dir) or os.path.exists(
+    gsd_path = snapshots.trajectory_path(run_dir) if (not os.path.isdir(run_dir) or os.path.exists(
         os.path.join(run_dir, "trajectory.gsd"))) else None
     obs = os.path.join(folder, "observables.csv") if os.path.isdir(run_dir) else None
     obs = obs if obs and os.path.exists(obs) else None
-    model = _input.model_of(gsd_path) if gsd_path else None
+    model = snapshots.model_of(gsd_path) if gsd_path else None
     if not asked:
         names = [name for name in names if name not in OPTIONAL or recorded(name, model, obs, gsd_path)]
     if gsd_path is None and not (obs and set(names) <= set(SERIES)):
@@ -174,7 +174,7 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     for name in names:  # every option checked before anything is read or written
         build(name, model, None, frames, options)
     try:
-        system = _input.as_frames(gsd_path) if gsd_path else None
+        system = snapshots.as_frames(gsd_path) if gsd_path else None
     except ParameterError as err:
         raise ParameterError(f"RUN_DIR {run_dir!r}: {str(err).partition(': ')[2]}") from None
     polar_source = run_dir if obs else system
@@ -201,7 +201,7 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
                 notes[name] = f"skipped: {rest}"
                 skipped[name] = rest
                 continue
-        messages = [hint(name, obj, str(w.message)) for w in caught]
+        messages = [hint(name, obj, str(w.message)) for w in caught] + list(obj.notes)
         if any(messages):
             notes[name] = "; ".join(m for m in messages if m)
         results[name] = obj
@@ -371,7 +371,7 @@ def caption(model, frames, window) -> str:
 
 def write_csv(path: str, obj, columns) -> None:
     values = [getattr(obj, attr) if isinstance(attr, str) else attr for _, attr in columns]
-    headers = [h if h is not None else "xyz"[obj.axis_used] for h, _ in columns]
+    headers = [h if h is not None else profile_axis(obj) for h, _ in columns]
     with replace_atomically(path, newline="") as f:
         writer = csv.writer(f)
         writer.writerow(headers)
@@ -384,8 +384,28 @@ def write_json(path: str, data: dict) -> None:
         json.dump(data, f, indent=1)
 
 
+def profile_axis(profile) -> str:
+    """The name of a density profile's coordinate: its axis, or ``s`` along a diagonal."""
+    return "xyz"[profile.axis_used] if profile.axis_used is not None else "s"
+
+
+def profile_line(obj) -> str:
+    """The summary of a density profile: where it runs, and its bands or why none."""
+    axis = profile_axis(obj)
+    where = axis
+    if axis == "s":
+        where = "(" + ", ".join(map(str, obj.lattice)) + ")" + (f", {obj.angle:.0f}° from x" if math.isfinite(
+            obj.angle) else "")
+    if not obj.frames_with_bands:
+        return f"density profile along {where}: no significant band in {obj.num_frames} frames"
+    speed = (f"speed {obj.band_speed:.3g} (length per time unit)" if math.isfinite(obj.band_speed)
+             else "no speed (see notes)")
+    return (f"density profile along {where}: bands in {obj.frames_with_bands} of {obj.num_frames} frames "
+            f"({obj.band_count} in the last), width {obj.band_width:.3g}, {speed}")
+
+
 def summary_lines(results) -> list[str]:
-    from ..analysis._base import format_value
+    from ..analysis.base import format_value
 
     lines = []
     for name, obj in results.items():
@@ -401,17 +421,14 @@ def summary_lines(results) -> list[str]:
             lines.append(f"nematic order: <S> {format_value(obj.mean, obj.mean_error, ' ± ')} "
                          f"(tau {obj.tau_time:.3g} time units, {obj.samples} values)")
         elif name == "fluctuations":
-            lines.append(f"number fluctuations: alpha {format_value(obj.alpha, obj.alpha_error, ' ± ')}")
+            alpha = format_value(obj.alpha, obj.alpha_error, ' ± ') if math.isfinite(obj.alpha) else "n/a (see notes)"
+            lines.append(f"number fluctuations: alpha {alpha}")
         elif name == "correlation":
-            lines.append(f"velocity correlation: first zero of C(r) at r = {obj.correlation_length:.4g}")
+            lines.append(f"velocity correlation: first zero of C(r) at r = {obj.correlation_length:.4g}"
+                         if math.isfinite(obj.correlation_length) else
+                         f"velocity correlation: no zero of C(r) up to r_max = {obj.r_max_used:.4g} (see notes)")
         elif name == "profile":
-            axis = "xyz"[obj.axis_used]
-            if obj.frames_with_bands:
-                lines.append(f"density profile along {axis}: bands in {obj.frames_with_bands} of {obj.num_frames} "
-                             f"frames ({obj.band_count} in the last), width {obj.band_width:.3g}, speed "
-                             f"{obj.band_speed:.3g} (length per time unit)")
-            else:
-                lines.append(f"density profile along {axis}: no significant band in {obj.num_frames} frames")
+            lines.append(profile_line(obj))
         elif name == "clusters":
             lines.append(f"clusters: largest {obj.largest_fraction_mean:.3f} of N (mean over {obj.num_frames} "
                          f"frames; last frame {obj.largest_fraction:.3f}), weight-average size "

@@ -20,7 +20,7 @@ When the runs sample the same stationary state and the ``s_i`` are right, both e
 in different states near a discontinuous transition, runs that had not settled), the
 within-run errors are too small and the scatter between replicas shows it: ``V_b`` is
 larger and is used. ``max(V_w, V_b)`` is ``V_w`` times the Birge ratio ``max(1, V_b / V_w)``,
-the rule :func:`flocking.analysis._base.fit_line` applies to the residuals of a fit.
+the rule :func:`flocking.analysis.base.fit_line` applies to the residuals of a fit.
 Its coverage, for Gaussian errors of equal variance and exact ``s_i``, is
 ``P(|m - mu| <= error) = E[erf(sqrt(max(1, Q) / 2))]`` with ``Q ~ chi^2_{R-1} / (R - 1)``
 (``m`` is independent of the sample variance): 0.733 for ``R = 2``, 0.731 for 3, 0.725 for
@@ -42,7 +42,7 @@ import math
 
 import numpy as np
 
-from ..analysis._base import fit_line
+from ..analysis.base import fit_line
 
 
 def combine(values, errors, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
@@ -109,7 +109,7 @@ def crossings(x, a, b) -> list[float]:
 
 def exponent(sizes, values, errors) -> tuple[float, float, float]:
     """``(slope, intercept, slope_error)`` of ``ln values`` against ``ln sizes``, weighted
-    by the relative errors (:func:`~flocking.analysis._base.fit_line`: the formal error,
+    by the relative errors (:func:`~flocking.analysis.base.fit_line`: the formal error,
     scaled up when the points scatter more than their errors allow).
 
     >>> slope, _, err = exponent([100, 400, 1600], [2.0, 4.0, 8.0], [0.2, 0.4, 0.8])

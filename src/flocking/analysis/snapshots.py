@@ -4,13 +4,15 @@ Accepted systems: a :class:`flocking.Trajectory` (``flocking.open``), a GSD path
 folder holding ``trajectory.gsd``, any ``gsd.hoomd`` trajectory or frame (HOOMD
 conventions, ours or another program's), a :class:`flocking.Frame`, a ``(box, points)``
 or ``(box, points, velocities)`` tuple (``box`` a number, one length per axis, freud's
-``[Lx, Ly, Lz, xy, xz, yz]`` with ``Lz = 0`` in 2D, or a ``freud.box.Box``), or a list of
-any of these frames. Positions are wrapped into ``[0, L)`` in double precision; each
-snapshot keeps the ``origin`` (lower corner) of the box in the input's own coordinates,
-so that results given as positions (the slabs of a density profile) read in them:
-``-L/2`` for GSD files, frames and freud boxes (centred, HOOMD's convention); for a
-plain box, 0 when every point lies in ``[0, L]``, else ``-L/2`` when every point lies in
-``[-L/2, L/2]`` (else 0, and the points are wrapped).
+``[Lx, Ly, Lz, xy, xz, yz]`` with ``Lz = 0`` in 2D, a ``freud.box.Box``, or a
+:class:`flocking.space.Space` with walls and obstacles), or a list of any of these frames.
+A flocking file's frames bring their walls and obstacles; other boxes are periodic.
+Positions are brought into the box in double precision (wrapped along periodic axes);
+each snapshot keeps the ``origin`` (lower corner) of the box in the input's own
+coordinates, so that results given as positions (the slabs of a density profile) read in
+them: ``-L/2`` for GSD files, frames and freud boxes (centred, HOOMD's convention); a
+space's own origin; for a plain box, 0 when every point lies in ``[0, L]``, else ``-L/2``
+when every point lies in ``[-L/2, L/2]`` (else 0, and the points are wrapped).
 
 >>> import numpy as np
 >>> frames = as_frames((10.0, np.array([[1.0, 2.0], [-4.0, 4.5]])))
@@ -20,6 +22,7 @@ plain box, 0 when every point lies in ``[0, L]``, else ``-L/2`` when every point
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 import os
@@ -28,23 +31,31 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..model import Model, ParameterError
-from ..trajectory import Frame, Trajectory, _frame
+from ..space import Space
+from ..trajectory import Frame, Trajectory, geometry_of, read_frame
 
 
 class Snapshot:
-    """One frame as the analysis sees it: ``step``, ``box`` (d,), ``positions`` (N, d) in
-    ``[0, L)`` as float64, unit ``headings`` (N, d) or ``None`` when no velocity is known,
+    """One frame as the analysis sees it: ``step``; ``space``, the
+    :class:`~flocking.space.Space` (box, walls, obstacles) with its corner at 0;
+    ``positions`` (N, d) in it as float64 (``[0, L)`` along periodic axes, ``[0, L]``
+    between walls); unit ``headings`` (N, d) or ``None`` when no velocity is known;
     ``origin`` (d,): where the input's coordinates put the box's lower corner (the input's
-    position ``x`` is ``origin + positions``, modulo the box), and the particle types
-    (species) when the input has them: ``types`` (names) and ``typeid`` (N,), else ``None``."""
+    position ``x`` is ``origin + positions``, modulo the box); and the particle types
+    (species) when the input has them: ``types`` (names) and ``typeid`` (N,), else ``None``.
+    ``space`` is given in the input's coordinates (a bare box length or lengths: periodic,
+    at the corner)."""
 
-    __slots__ = ("step", "box", "positions", "headings", "origin", "typeid", "types")
+    __slots__ = ("step", "space", "box", "positions", "headings", "origin", "typeid", "types")
 
-    def __init__(self, step: int, box, positions, headings=None, origin=None, typeid=None, types=None):
+    def __init__(self, step: int, space, positions, headings=None, typeid=None, types=None):
+        if not isinstance(space, Space):
+            space = Space(tuple(np.broadcast_to(np.asarray(space, dtype=np.float64), (np.shape(positions)[1],))))
         self.step = int(step)
-        self.box = np.asarray(box, dtype=np.float64)
-        self.origin = np.zeros_like(self.box) if origin is None else np.asarray(origin, dtype=np.float64)
-        self.positions = wrap(np.asarray(positions, dtype=np.float64) - self.origin, self.box)
+        self.origin = np.asarray(space.origin)
+        self.space = space.with_origin(0.0)
+        self.box = self.space.lengths
+        self.positions = self.space.inside(np.asarray(positions, dtype=np.float64) - self.origin)
         self.headings = None if headings is None else unit(headings)
         self.typeid = None if typeid is None else np.asarray(typeid, dtype=np.int64)
         self.types = None if types is None else tuple(str(t) for t in types)
@@ -70,13 +81,6 @@ class Snapshot:
         if species not in self.types:
             raise ParameterError(f"species: must be one of {', '.join(self.types)} (got {species!r})")
         return self.typeid == self.types.index(species)
-
-
-def wrap(x: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """Positions into ``[0, L)`` (a value that rounds to ``L`` becomes 0)."""
-    x = np.mod(x, box)
-    x[x >= box] = 0.0
-    return x
 
 
 def unit(v) -> np.ndarray:
@@ -150,44 +154,51 @@ def _box_from(box, ncols: int) -> tuple[np.ndarray, bool]:
 
 
 def from_box_points(box, points, velocities=None, step: int = 0) -> Snapshot:
-    """A snapshot from a box and an ``(N, 2)`` or ``(N, 3)`` array of points."""
+    """A snapshot from a box (or a :class:`~flocking.space.Space`) and an ``(N, 2)`` or
+    ``(N, 3)`` array of points."""
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] not in (2, 3) or len(points) == 0:
         raise ParameterError(f"points: must be a non-empty (N, 2) or (N, 3) array (got shape {points.shape})")
     if not np.all(np.isfinite(points)):
         raise ParameterError("points: must be finite")
-    lengths, centred = _box_from(box, points.shape[1])
+    if isinstance(box, Space):
+        space = box
+        lengths = space.lengths
+    else:
+        lengths, centred = _box_from(box, points.shape[1])
+        if points.shape[1] >= len(lengths) and not centred:
+            inside = points[:, : len(lengths)]
+            if not np.all((inside >= 0) & (inside <= lengths)):
+                centred = bool(np.all(np.abs(inside) <= lengths / 2))
+        space = Space(tuple(lengths), origin=tuple(-lengths / 2 if centred else np.zeros(len(lengths))))
     dim = len(lengths)
     if points.shape[1] < dim:
         raise ParameterError(f"points: a {dim}D box needs {dim} columns (got {points.shape[1]})")
-    points = points[:, :dim]
-    if not centred and not np.all((points >= 0) & (points <= lengths)):
-        centred = bool(np.all(np.abs(points) <= lengths / 2))
     headings = None
     if velocities is not None:
         velocities = np.asarray(velocities, dtype=np.float64)
         if velocities.shape[0] != len(points) or velocities.ndim != 2 or velocities.shape[1] < dim:
             raise ParameterError(f"velocities: must have shape ({len(points)}, {dim}) (got {velocities.shape})")
         headings = velocities[:, :dim]
-    return Snapshot(step, lengths, points, headings, -lengths / 2 if centred else None)
+    return Snapshot(step, space, points[:, :dim], headings)
 
 
 def from_frame(frame: Frame, typeid=None, types=None) -> Snapshot:
-    """A snapshot of a :class:`flocking.Frame`; its types are the frame's ``typeid`` and
-    ``types`` where it has them, else those given."""
+    """A snapshot of a :class:`flocking.Frame`, with its walls and obstacles; its types
+    are the frame's ``typeid`` and ``types`` where it has them, else those given."""
     v = frame.velocities[:, : frame.dim].astype(np.float64)
     headings = v if np.any(v) else None
     if getattr(frame, "typeid", None) is not None:  # frames that carry their types
         typeid, types = frame.typeid, frame.types
-    return Snapshot(frame.step, frame.box_lengths, frame.positions.astype(np.float64), headings,
-                    -frame.box_lengths / 2, typeid, types)
+    return Snapshot(frame.step, Space.of_frame(frame), frame.positions.astype(np.float64), headings, typeid, types)
 
 
-def from_gsd_frame(frame) -> Snapshot:
+def from_gsd_frame(frame, geometry: dict | None = None) -> Snapshot:
     """A snapshot of a ``gsd.hoomd.Frame``, with its particle types (``particles/typeid``
-    is read from frame 0 where later frames leave it out, as gsd does)."""
+    is read from frame 0 where later frames leave it out, as gsd does) and the run's
+    ``geometry`` (walls and obstacles: :func:`flocking.trajectory.geometry_of`)."""
     particles = frame.particles
-    return from_frame(_frame(frame), particles.typeid, particles.types)
+    return from_frame(read_frame(frame, geometry), particles.typeid, particles.types)
 
 
 def _from_any_frame(item) -> Snapshot:
@@ -236,9 +247,12 @@ def as_frames(system) -> Frames:
             raise ParameterError(f"system: {path!r} is not a readable GSD file ({err})") from None
         return as_frames(traj)
     if isinstance(system, Trajectory):  # read through its gsd file, which holds the particle types
-        return Frames(system._file, from_gsd_frame, _gsd_steps(system._file), _stored_model(system))
+        convert = functools.partial(from_gsd_frame, geometry=system.geometry)
+        return Frames(system.gsd, convert, _gsd_steps(system.gsd), _stored_model(system))
     if hasattr(system, "file") and hasattr(system, "__getitem__") and hasattr(system, "__len__"):
-        return Frames(system, _from_any_frame, _gsd_steps(system))  # a gsd.hoomd trajectory
+        # a gsd.hoomd trajectory: its frames, with the walls and obstacles of its frame 0
+        convert = functools.partial(from_gsd_frame, geometry=geometry_of(system))
+        return Frames(system, convert, _gsd_steps(system))
     if _is_box_points(system) or _looks_like_frame(system):
         return Frames([system], _from_any_frame)
     if isinstance(system, (list, tuple)):

@@ -7,7 +7,8 @@ results and returns the object; results are read-only properties that raise
 house style (:mod:`flocking.viz.style`), imported lazily: on the axes given, touching
 nothing else of its figure, or on a new ``column``-sized figure when none is given. The
 colours follow ``theme`` (``"dark"`` or ``"light"``); by default that of a house-style
-figure, else the one that reads on the axes' background.
+figure, else the one that reads on the axes' background. ``notes`` says why any result is
+NaN or was not found, and how the walls and obstacles of the input were treated.
 """
 
 from __future__ import annotations
@@ -43,8 +44,11 @@ class Analysis:
     #: the results that :meth:`to_dict` reports, in order
     _keys: tuple[str, ...] = ()
 
-    def _store(self, **values) -> None:
-        stored = {}
+    notes = result("notes", "Why a result is NaN or was not found, and how walls and obstacles were treated: a "
+                            "tuple of sentences (empty when there is nothing to say).")
+
+    def _store(self, notes=(), **values) -> None:
+        stored = {"notes": tuple(notes)}
         for key, value in values.items():
             if isinstance(value, np.ndarray):
                 value = value.copy()
@@ -64,6 +68,7 @@ class Analysis:
         """Parameters and results as plain JSON types (NaN and infinities become ``None``)."""
         out = {"quantity": type(self).__name__, "parameters": _plain(self.parameters())}
         out.update({key: _plain(getattr(self, key)) for key in self._keys})
+        out["notes"] = list(self.notes)
         return out
 
     def _axes(self, ax, theme):
@@ -194,3 +199,34 @@ def format_value(value, error=float("nan"), pm: str = r" \pm ") -> str:
         return f"{value:.0f}" if 1e4 <= abs(value) < 1e9 else f"{value:.4g}"
     decimals = max(0, 1 - math.floor(math.log10(error)))
     return f"{value:.{decimals}f}{pm}{error:.{decimals}f}"
+
+
+def walls_text(space) -> str:
+    """The axes of ``space`` closed by walls, in words (``""`` when none).
+
+    >>> from flocking.space import Space
+    >>> walls_text(Space((4.0, 4.0, 4.0), walls=(True, False, True))), walls_text(Space((4.0, 4.0)))
+    ('walls on x and z', '')
+    """
+    axes = [a for a, wall in zip("xyz", space.walls) if wall]
+    return f"walls on {' and '.join(axes)}" if axes else ""
+
+
+def pair_notes(space, what: str) -> list[str]:
+    """What a quantity of pairs does at the walls and obstacles of ``space``: ``what``
+    (``"no link"``, ``"no pair"``) across walls; pairs across obstacles count.
+
+    >>> from flocking.space import Space
+    >>> for note in pair_notes(Space((8.0, 8.0), walls=(False, True), obstacles=[(4.0, 4.0, 1.0)]), "no link"):
+    ...     print(note)
+    walls on y: no link across them (the minimum image along periodic axes only)
+    1 obstacle: pairs across it count, as in the engine, whose neighbours see across obstacles
+    """
+    notes = []
+    if any(space.walls):
+        notes.append(f"{walls_text(space)}: {what} across them (the minimum image along periodic axes only)")
+    if space.obstacles:
+        many = len(space.obstacles) > 1
+        notes.append(f"{len(space.obstacles)} obstacle{'s' * many}: pairs across {'them' if many else 'it'} count, "
+                     "as in the engine, whose neighbours see across obstacles")
+    return notes
