@@ -186,6 +186,15 @@ def legend(ax, theme="dark", **options):
     return ax.legend(labelcolor=t.text, **options)
 
 
+def shade_window(ax, start: float, stop: float, theme="dark", label: str | None = None):
+    """Shade the stretch ``[start, stop]`` of the x axis that a mean is taken over: a
+    band in the theme's edge colour, plain to see on either background, outlined in it.
+    Returns the band."""
+    t = get_theme(theme)
+    fill = (*t.edge, 0.35 if t.name == "dark" else 0.22)
+    return ax.axvspan(start, stop, facecolor=fill, edgecolor=t.edge, lw=0.9, label=label, zorder=0)
+
+
 def visible_length(text: str) -> int:
     """Characters ``text`` shows once mathtext is typeset (``$\\eta$`` is one).
 
