@@ -188,12 +188,34 @@ def _extension_parts(m: dict, dim: int) -> list[str]:
     return parts
 
 
-def time_text(frame, dt: float = 1.0) -> str:
-    """The readout under a picture's key: the step (and the time if ``dt != 1``) and the
-    polar order, a line each."""
+#: The readout names each species' polar order for up to this many species.
+READOUT_SPECIES = 4
+
+
+def readout_lines(types, dt: float = 1.0, nematic: bool = False) -> int:
+    """How many lines :func:`time_text` writes for these species, ``dt`` and alignment."""
+    return 2 + (dt != 1.0) + bool(nematic) + (len(types) if 1 < len(types) <= READOUT_SPECIES else 0)
+
+
+def time_text(frame, dt: float = 1.0, nematic: bool = False) -> str:
+    """The readout under a picture's key, a line each: the step (and the time if
+    ``dt != 1``), the nematic order ``S`` (for a run with nematic alignment, whose
+    polar order tells little), each species' polar order (with several, up to
+    :data:`READOUT_SPECIES`: species that move apart can each be ordered when the whole
+    flock is not) and the polar order."""
+    from ..analysis.order import mathtext_text, nematic_order
+
     lines = [f"step {frame.step:,}"]
     if dt != 1.0:
         lines.append(f"$t$ = {frame.step * dt:,.6g}")
+    if nematic:
+        lines.append(f"$S$ = {nematic_order(frame.headings):.3f}")
+    if 1 < len(frame.types) <= READOUT_SPECIES:
+        headings = frame.headings
+        for s, name in enumerate(frame.types):
+            mine = headings[frame.typeid == s]
+            phi = float(np.linalg.norm(mine.sum(axis=0)) / len(mine)) if len(mine) else float("nan")
+            lines.append(fr"$\varphi_{{\mathrm{{{mathtext_text(name)}}}}}$ = {phi:.3f}")
     return "\n".join([*lines, fr"$\varphi$ = {frame.polar_order:.3f}"])
 
 
@@ -508,8 +530,10 @@ class Scene:
         self.ax.set_anchor("E")
         self.key_axes.set_anchor("W")
         self._style_axes(fs)
-        self.dt = (as_parameters(parameters) or {}).get("model", {}).get("dt", 1.0)
-        lines = (3 if self.dt != 1.0 else 2) if time_label else 0  # of time_text
+        model = (as_parameters(parameters) or {}).get("model", {})
+        self.dt = model.get("dt", 1.0)
+        self.nematic = model.get("alignment_rule") == "nematic"
+        lines = readout_lines(self.types, self.dt, self.nematic) if time_label else 0
         if self.color == "species":
             self._key_label, self.time_label = species_key(self.key_axes, self.types, t, fs, lines)
         elif self.color == "deviation":
@@ -625,7 +649,7 @@ class Scene:
         else:
             self.artist.update(frame, azim=azim)
         if self.time_label is not None:
-            self.time_label.set_text(time_text(frame, self.dt))
+            self.time_label.set_text(time_text(frame, self.dt, self.nematic))
         return self
 
     def rgb(self) -> np.ndarray:
