@@ -558,18 +558,29 @@ class Scene:
         self.ax.set_aspect("equal")
         self._layout()
         # the height that fits the box's aspect: give back what it leaves empty, or add what
-        # it lacks when a shorter figure's layout made it narrower than its slot
-        for _ in range(4 if auto_height else 0):
+        # it lacks when a shorter figure's layout made it narrower than its slot; the layout
+        # of a shorter figure can move the margins, so the height is bracketed and halved
+        short, tall = 0, None
+        for _ in range(10 if auto_height else 0):
             self.ax.apply_aspect()
             slot, shown = self.ax.get_position(original=True), self.ax.get_position()
             spare = (slot.height - shown.height) * height_px
             lacking = (slot.width - shown.width) * width_px * self.box[1] / self.box[0] if dim == 2 else 0.0
             if spare >= 16:
-                height_px -= 16 * int(spare // 16)
+                tall = height_px
+                guess = height_px - 16 * int(spare // 16)
             elif lacking >= 16:
-                height_px += 16 * int(np.ceil(lacking / 16))
+                short = height_px
+                guess = height_px + 16 * int(np.ceil(lacking / 16))
             else:
                 break
+            if tall is not None and not short < guess < tall:
+                guess = 16 * round((short + tall) / 32)
+            if tall is not None and tall - short <= 16 or guess in (short, tall):
+                guess = tall  # nothing between: the taller, which leaves the box whole
+            if guess == height_px:
+                break
+            height_px = guess
             self.pixels = (width_px, height_px)
             fig.set_size_inches(width_px / dpi, height_px / dpi)
             self._layout()
