@@ -21,10 +21,10 @@ It prints what applies to the run:
   nematic lane).
 
 ``--figure`` draws the last frame (box coordinates, units of R) beside (``--layout side``)
-or above (``below``) the series of the order parameters that tell the run's story, one
-value a frame: M for a mill, each species' polar order and the whole flock's for a
-mixture, S and phi for nematic alignment, else phi; the second half shaded, its means in
-the legend (the numbers printed).
+or above (``below``; ``auto``: below in a paper column) the series of the order parameters
+that tell the run's story, one value a frame: M for a mill, each species' polar order and
+the whole flock's for a mixture, S and phi for nematic alignment, else phi; the second
+half shaded, its means in the legend (the numbers printed).
 """
 
 from __future__ import annotations
@@ -193,11 +193,13 @@ def short(value: float) -> str:
     return f"{value:.2f}" if abs(value) >= 0.1 else f"{value:.2g}"
 
 
-def figure(path: str, out: str, theme: str = "light", size: str = "page", layout: str = "side",
+def figure(path: str, out: str, theme: str = "light", size: str = "page", layout: str = "auto",
            style: str = "auto", dpi: float | None = None) -> dict[str, float]:
     """Draw the run at ``path``: its last frame and its story's series (:func:`story`), one
     value a frame, the second half shaded with each series' mean there (the numbers of
-    :func:`measure`). Writes ``out``; returns the means."""
+    :func:`measure`); the series ``side`` by side with the frame or ``below`` it (``auto``:
+    below in a figure narrower than 5 inches, a paper column). Writes ``out``; returns
+    the means."""
     from flocking.viz import style as house
     from flocking.viz.render import FrameArtist, describe, heading_key, readout_lines, species_key, time_text
 
@@ -212,6 +214,8 @@ def figure(path: str, out: str, theme: str = "light", size: str = "page", layout
 
     t = house.get_theme(theme)
     width, height, fs = house.resolve_size(size)
+    if layout == "auto":
+        layout = "side" if width >= 5.0 else "below"
     box = last.box_lengths[:2]
     aspect = box[1] / box[0]
     key = 9.0 * fs / 72
@@ -261,7 +265,7 @@ def figure(path: str, out: str, theme: str = "light", size: str = "page", layout
     if signed:
         plot.axhline(0.0, color=t.edge, lw=0.8)
     house.label_axes(plot, "step", "order parameter")
-    house.legend(plot, t, loc="upper right" if signed else "lower right", handlelength=1.2)
+    house.legend(plot, t, loc="upper right" if signed else "best", handlelength=1.2)
     main, details = describe(traj.parameters, 2, last.n, box)
     defined = [DEFINITIONS[s] for _, _, s in shown if s in DEFINITIONS]
     house.title(fig, main, " \u00b7 ".join([details, *defined, f"shaded: the second half, steps {steps[half]:,} "
@@ -277,8 +281,8 @@ def main() -> None:
     parser.add_argument("--figure", default=None, help="also draw the run's figure to this file (.png, .svg, .pdf)")
     parser.add_argument("--theme", default="light", help="the figure's: dark or light")
     parser.add_argument("--size", default="page", help="the figure's: column, page or slide")
-    parser.add_argument("--layout", default="side", choices=("side", "below"), help="the series beside the frame, "
-                        "or below it")
+    parser.add_argument("--layout", default="auto", choices=("auto", "side", "below"),
+                        help="the series beside the frame, or below it (auto: below in a paper column)")
     parser.add_argument("--style", default="auto", help="the frame's: auto, arrows or density")
     parser.add_argument("--dpi", type=float, default=None, help="the figure's pixels per inch")
     args = parser.parse_args()
