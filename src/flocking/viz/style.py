@@ -61,7 +61,7 @@ LABELS = {
     "mean_count": r"$\langle n\rangle$",
     "count_std": r"$\Delta n$",
     "lag": r"lag $\tau$",
-    "msd": r"$\langle|\Delta\mathbf{r}|^2\rangle$",
+    "msd": r"$\langle|\Delta\mathbf{r}|^2\rangle$ (units of $R^2$)",
     "box_size": r"box size $\ell$ (units of $R$)",
     "boxes": r"occupied boxes $N(\ell)$",
     "cluster_size": "cluster size $s$",
