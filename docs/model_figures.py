@@ -221,41 +221,55 @@ def check_circle(points: np.ndarray, omega: float) -> None:
 
 
 def draw_chirality(args) -> None:
-    """The chirality figure, its noise-free trajectories checked, written to ``args.out``."""
+    """The chirality figure, its noise-free trajectories checked, written to ``args.out``:
+    two panels on one scale (the same length of x and y per inch in both)."""
+    noisy_omega, eta, steps, seed = NOISY
+    noisy = trajectory(noisy_omega, eta, steps, seed)
+    clean = {omega: trajectory(omega) for omega in OMEGAS}
+    for omega, points in clean.items():
+        check_circle(points, omega)
+    pad = 0.8
+    spans = [(min(p[:, a].min() for p in group) - pad, max(p[:, a].max() for p in group) + pad)
+             for group in (list(clean.values()), [noisy]) for a in (0, 1)]
+    (lx, ly), (rx, ry) = spans[:2], spans[2:]
+    y = (min(ly[0], ry[0]), max(ly[1], ry[1], 2.2 + pad))
     t = house.get_theme(args.theme)
-    fig, (left, right) = house.figure(args.size, t, 1, 2, width_ratios=(2.1, 1.0), sharey=True)
+    fig, (left, right) = house.figure(args.size, t, 1, 2, width_ratios=(lx[1] - lx[0], rx[1] - rx[0]),
+                                      sharey=True)
     scale = house.fontsize(fig) / 8.0
     size = house.fontsize(fig)
     colors = house.palette(t)
     ring = np.linspace(0, 2 * math.pi, 200)
     circle = np.stack([np.cos(ring), np.sin(ring)], axis=1)
 
-    for omega, color in zip(OMEGAS, colors):
-        points = trajectory(omega)
-        check_circle(points, omega)
+    for (omega, points), color in zip(clean.items(), colors):
         centre, radius = predicted_circle(omega)
         left.plot(*(centre + radius * circle).T, color=color, lw=3.5 * scale, alpha=0.3, solid_capstyle="butt")
         left.plot(*points.T, color=color, lw=0.6 * scale, marker="o", ms=1.3 * scale, label=f"$\\omega = {omega:g}$")
     house.legend(left, t, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=len(OMEGAS), handlelength=1.2,
                  columnspacing=1.0, handletextpad=0.4, borderaxespad=0.2)
 
-    omega, eta, steps, seed = NOISY
-    points = trajectory(omega, eta, steps, seed)
-    centre, radius = predicted_circle(omega)
+    points = noisy
+    centre, radius = predicted_circle(noisy_omega)
     right.plot(*(centre + radius * circle).T, color=t.text, lw=0.7 * scale, ls=(0, (3, 2)), alpha=0.8)
     right.plot(*points.T, color=colors[3], lw=0.7 * scale)
-    right.text(0.5, 1.02, f"$\\omega = {omega:g}$, $\\eta = {eta:g}$\n{steps} steps", color=colors[3],
+    right.text(0.5, 1.02, f"$\\omega = {noisy_omega:g}$, $\\eta = {eta:g}$\n{steps} steps", color=colors[3],
                fontsize=0.85 * size, ha="center", va="bottom", transform=right.transAxes)
 
-    for ax in (left, right):
+    for ax, xlim in ((left, lx), (right, rx)):
         ax.annotate("", xy=(0, 2.2), xytext=(0, 0),
                     arrowprops={"arrowstyle": "-|>", "color": t.text, "lw": 0.9 * scale,
                                 "mutation_scale": 7 * scale})
         ax.plot([0], [0], "o", color=t.text, ms=2.5 * scale)
-        ax.set_aspect("equal")
-        ax.tick_params(labelsize=0.8 * size)
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*y)
+        ax.set_aspect("equal", adjustable="box")  # equal heights (shared y), so equal scales
+        ax.tick_params(labelsize=0.8 * size, labelleft=True)
+    house.label_axes(left, r"$x - x_0$ (units of $R$)", r"$y - y_0$ (units of $R$)")
+    house.label_axes(right, r"$x - x_0$")
     house.title(fig, "Chirality: particles that turn by themselves",
-                f"$v_0$ = {SPEED:g} · $\\Delta{{t}}$ = {DT:g} · dots: the engine, a step each · "
+                f"$v_0$ = {SPEED:g} $R$ per step · $\\Delta{{t}}$ = {DT:g} · from the start $(x_0, y_0)$ heading "
+                "$+y$ (arrow) · both panels on one scale · dots: the engine, a step each · "
                 "band: radius $v_0\\Delta{t}/(2\\sin(\\omega\\Delta{t}/2))$ · dashed: the same without noise")
     house.save(fig, args.out)
 

@@ -32,9 +32,12 @@ STEPS, DISCARD, SAMPLE = 1500, 500, 10
 
 
 def model(fraction: float, seed: int) -> Model:
-    """The flock with ``fraction`` of informed particles (species ``informed``, ids first)."""
+    """The flock with ``fraction`` of informed particles (species ``informed``, ids first;
+    none or all of them: one species, whose field strength is ``h`` or 0)."""
     n = BASE["n"]
     informed = round(fraction * n)
+    if informed in (0, n):
+        return Model(**BASE, field_strength=FIELD_STRENGTH if informed else 0.0, seed=seed)
     species = [{"name": "informed", "n": informed, "field_strength": FIELD_STRENGTH},
                {"name": "naive", "n": n - informed}]
     return Model(**BASE, species=species, seed=seed)
@@ -70,14 +73,18 @@ def main() -> None:
     print(f"{len(FRACTIONS) * SEEDS} runs in {time.perf_counter() - started:.0f} s")
 
     t = house.get_theme(args.theme)
-    fig, ax = house.figure(args.size, t)
+    width, height, _ = house.resolve_size(args.size)
+    fig, ax = house.figure((width, height + 0.6), t)  # room for the caption's definitions
     ax.axhline(0.0, color=t.edge, lw=0.8)
     ax.errorbar(FRACTIONS, means, yerr=errors, color=house.palette(t)[0], marker="o", ms=4, lw=1.2, capsize=2.5)
     house.label_axes(ax, r"informed fraction $p$", r"accuracy $\langle\cos(\mathbf{m}, \mathbf{g})\rangle$")
     ax.set_ylim(min(-0.1, min(np.subtract(means, errors)) - 0.05), 1.05)  # every error bar whole
     house.title(fig, "Informed individuals steer the flock",
-                f"$N$ = {BASE['n']} · $\\rho$ = {BASE['density']:g} · $\\eta$ = {BASE['noise']:g} · "
-                f"$h$ = {FIELD_STRENGTH:g} · {SEEDS} seeds · steps {DISCARD}-{STEPS}")
+                f"$N$ = {BASE['n']} · $\\rho$ = {BASE['density']:g} · angular noise $\\eta$ = {BASE['noise']:g} · "
+                f"the informed pull toward $\\mathbf{{g}}$ = $+x$ with field strength $h$ = {FIELD_STRENGTH:g} "
+                "(adding $h\\, n_i\\, \\mathbf{g}$ to the sum of their $n_i$ neighbours' headings) · "
+                f"$\\mathbf{{m}}$: the flock's mean heading, averaged over steps {DISCARD}-{STEPS} · "
+                f"bars: standard error of the mean over {SEEDS} seeds")
     house.save(fig, args.out)
 
 

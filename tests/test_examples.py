@@ -101,3 +101,36 @@ def test_measure_band_is_a_quarter_for_a_uniform_density_and_one_for_a_band():
     assert measure.band(_frame_2d(diagonal, box), angle + 0.05) == 1.0
     # cut across the wrong line, the same band looks almost uniform
     assert measure.band(_frame_2d(diagonal, box), 0.0) < 0.35
+
+
+@pytest.mark.parametrize("extra, shown", [
+    ('boundary = "wall"\nobstacles = [{centre = [6.0, 6.0], radius = 2.0}]\n', ["milling"]),
+    ('species = [{name = "A", fraction = 0.5}, {name = "B", fraction = 0.5}]\ncoupling = [[1.0, -1.0], [-1.0, 1.0]]\n',
+     ["phi_A", "phi_B", "phi"]),
+    ('alignment_rule = "nematic"\n', ["nematic", "phi"]),
+])
+def test_the_figure_shows_the_numbers_measure_prints(tmp_path, extra, shown):
+    from click.testing import CliRunner
+    from matplotlib.image import imread
+
+    from flocking.cli import main
+
+    config = tmp_path / "run.toml"
+    config.write_text(f"n = 60\nbox = 12.0\nnoise = 0.5\nsteps = 40\nevery = 4\n{extra}")
+    run = tmp_path / "run"
+    result = CliRunner().invoke(main, ["run", "--config", str(config), "--backend", "reference", "--no-plots",
+                                       "--out", str(run), "-q"])
+    assert result.exit_code == 0, result.output
+    printed = measure.measure(str(run))
+    out = tmp_path / "figure.png"
+    means = measure.figure(str(run), str(out), theme="dark", size="column", dpi=60)
+    assert list(means) == shown and imread(out).shape[1] == round(3.4 * 60)
+    for key, value in means.items():  # the legend's means are measure's, over the same frames
+        assert value == pytest.approx(printed[key], abs=1e-12)
+    assert printed["from_step"] == 20 and printed["to_step"] == 40 and printed["frames"] == 6
+
+
+def test_measure_rounds_as_the_readme_quotes():
+    assert [measure.short(v) for v in (0.9583, -0.7237, 0.01512, 0.1)] == ["0.96", "-0.72", "0.015", "0.10"]
+    assert measure.story({"obstacles": [{}]}, ("A",)) == measure.MILLING
+    assert [key for key, _, _ in measure.story({}, ("A", "B"))] == ["phi_A", "phi_B", "phi"]

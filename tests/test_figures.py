@@ -4,6 +4,7 @@ have not changed since (tools/figures.py); the tool itself finds every kind of c
 import importlib.util
 import os
 import re
+import subprocess
 
 import pytest
 
@@ -105,6 +106,25 @@ def test_manifest_errors_name_the_problem(repo):
 
 def test_a_failing_command_records_nothing(repo):
     (repo / "draw.py").write_text("raise SystemExit(3)\n")
-    with pytest.raises(Exception):
+    with pytest.raises(subprocess.CalledProcessError) as failed:
         figures.main(["make", "fig.txt"])
+    assert failed.value.returncode == 3
     assert "digests" not in (repo / "docs" / "figures.toml").read_text()
+
+
+def test_a_make_keeps_what_another_make_recorded_meanwhile(repo, capsys, monkeypatch):
+    (repo / "docs" / "figures.toml").write_text(
+        (repo / "docs" / "figures.toml").read_text()
+        + '\n[[figure]]\npath = "other.txt"\nmake = ["python draw.py fig.toml {work}/out.txt"]\n'
+          'output = "{work}/out.txt"\ninputs = ["fig.toml"]\n')
+    make = figures.make
+
+    def slow_make(fig):  # while fig.txt is being made, other.txt is made in another shell
+        make(fig)
+        if fig["path"] == "fig.txt":
+            monkeypatch.setattr(figures, "make", make)
+            assert figures.main(["make", "other.txt"]) == 0
+
+    monkeypatch.setattr(figures, "make", slow_make)
+    assert figures.main(["make", "fig.txt"]) == 0
+    assert check(capsys) == (0, "fig.txt: current\nother.txt: current\n")

@@ -282,6 +282,81 @@ def test_the_page_fits_the_screen(browser, url, tmp_path, width, height):
         assert all(size < phi for name, size in sizes if name != "phi"), sizes
         assert phi >= 2.5 * font_px(page, "body")
         assert page.evaluate("flockPlay.plot.tickPx") >= 14
+        assert_label_clear_of_ticks(page)
+    finally:
+        context.close()
+
+
+def assert_label_clear_of_ticks(page):
+    """The plot's phi label and its tick labels are apart: the columns of the plot's left
+    margin that hold ink form separate runs, the first (the label) at least 0.4 font
+    sizes from the next (the ticks' labels)."""
+    runs = page.evaluate("""() => {
+        const c = document.getElementById('plot'), ctx = c.getContext('2d');
+        const dpr = window.devicePixelRatio || 1, x0 = Math.round(flockPlay.plot.x0 * dpr);
+        const d = ctx.getImageData(0, 0, x0, c.height).data;
+        const inked = [];
+        for (let x = 0; x < x0; x++) {
+            let any = false;
+            for (let y = 0; y < c.height && !any; y++) any = d[4 * (y * x0 + x) + 3] > 40;
+            inked.push(any);
+        }
+        const runs = [];
+        inked.forEach((on, x) => {
+            if (on && (!runs.length || runs[runs.length - 1][1] !== x - 1)) runs.push([x, x]);
+            else if (on) runs[runs.length - 1][1] = x;
+        });
+        return runs.map(([a, b]) => [a / dpr, b / dpr]);
+    }""")
+    assert len(runs) >= 2, runs
+    assert runs[1][0] - runs[0][1] >= 0.4 * page.evaluate("flockPlay.plot.tickPx"), runs
+
+
+REACHABLE = [(1366, 768), (1920, 1080), (1024, 700)]
+
+
+@pytest.mark.parametrize("opened", [True, False], ids=["sections-open", "sections-closed"])
+@pytest.mark.parametrize("width, height", REACHABLE, ids=[f"{w}x{h}" for w, h in REACHABLE])
+def test_every_control_is_within_the_width_and_reachable_by_scrolling_down(browser, url, tmp_path, width, height,
+                                                                         opened):
+    context = browser.new_context(viewport={"width": width, "height": height}, bypass_csp=True)
+    page = context.new_page()
+    try:
+        page.goto(url)
+        page.wait_for_function("window.flockPlay && flockPlay.frames > 5 && flockPlay.model", timeout=30_000)
+        if opened:
+            for section in ("#space", "#second", "#sight"):
+                page.click(f"{section} summary")
+            assert page.evaluate("[...document.querySelectorAll('details')].every((d) => d.open)")
+        page.wait_for_timeout(300)
+        shot = tmp_path / f"play-{width}x{height}-{'open' if opened else 'closed'}.png"
+        page.screenshot(path=shot)
+        print(f"screenshot: {shot}")
+        assert page.evaluate("document.documentElement.scrollWidth") <= width  # the page never scrolls sideways
+        # the status line under the plot shows its whole height
+        line = page.evaluate("(() => { const r = document.getElementById('readout'); "
+                             "return [r.clientHeight, r.scrollHeight, parseFloat(getComputedStyle(r).fontSize)]; })()")
+        assert line[0] >= line[1] and line[0] >= 1.2 * line[2], line
+        controls = page.evaluate("""() => [...document.querySelectorAll(
+                '#controls input, #controls select, #controls button, #controls summary')]
+            .filter((el) => el.offsetParent !== null && !el.closest('details:not([open]) > :not(summary)'))
+            .map((el) => el.id || el.name + ':' + el.value || el.textContent.trim().slice(0, 20))""")
+        assert len(controls) >= (30 if opened else 20), controls
+        for k, name in enumerate(controls):
+            box = page.evaluate("""(k) => {
+                const el = [...document.querySelectorAll(
+                    '#controls input, #controls select, #controls button, #controls summary')]
+                    .filter((el) => el.offsetParent !== null && !el.closest('details:not([open]) > :not(summary)'))[k];
+                el.scrollIntoView({ block: 'nearest' });
+                const r = el.getBoundingClientRect();
+                const hit = document.elementFromPoint(r.x + r.width / 2, r.y + r.height / 2);
+                return { x: r.x, y: r.y, right: r.right, bottom: r.bottom,
+                         top: hit === el || el.contains(hit) || (el.labels && [...el.labels].some((l) => l.contains(hit))) };
+            }""", k)
+            assert box["x"] >= 0 and box["right"] <= width + 0.5, name          # nothing off the right edge
+            assert box["y"] >= 0 and box["bottom"] <= height + 0.5, name        # scrolled into view: reachable
+            assert box["top"], name                                             # and not covered by anything
+        assert page.evaluate("window.scrollY") == 0  # the panel scrolled, not the page: the flock stays in view
     finally:
         context.close()
 
@@ -334,5 +409,69 @@ def test_a_refused_tab_says_why_and_its_controls_look_disabled(browser, small_se
         second.reload()
         second.wait_for_function("window.flockPlay && flockPlay.frames > 2 && !flockPlay.refused", timeout=30_000)
         assert not second.is_disabled("#play")
+    finally:
+        context.close()
+
+
+@pytest.fixture
+def slow_obstacle_url(monkeypatch):
+    """An in-process server whose tab takes 2.5 s to apply its first obstacle, as numba
+    compiling the extended kernels for the first time does."""
+    import threading
+
+    import uvicorn
+
+    from flocking import Model
+    from flocking.cli.play import listen
+    from flocking.play import server
+    from flocking.play.session import Session
+
+    receive, work = Session.receive, Session.work
+    asked = threading.Event()
+
+    def note(self, raw):
+        if b'"obstacle"' in (raw if isinstance(raw, bytes) else raw.encode()):
+            asked.set()
+        receive(self, raw)
+
+    def slow(self, advance=False):
+        if asked.is_set():
+            asked.clear()
+            time.sleep(2.5)
+        work(self, advance)
+
+    monkeypatch.setattr(Session, "receive", note)
+    monkeypatch.setattr(Session, "work", slow)
+    app = server.create_app(Model(n=2000, noise=0.5))
+    sock = listen("127.0.0.1", 0)
+    from uvicorn.config import WS_PROTOCOLS
+
+    ws = "websockets-sansio" if "websockets-sansio" in WS_PROTOCOLS else "websockets"  # as flocking play
+    config = uvicorn.Config(app, ws=ws, log_level="warning", lifespan="off")
+    runner = uvicorn.Server(config)
+    thread = threading.Thread(target=runner.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{sock.getsockname()[1]}/"
+    runner.should_exit = True
+    thread.join(timeout=20)
+
+
+def test_a_slow_change_is_announced_until_its_frame_comes(browser, slow_obstacle_url):
+    context = browser.new_context(viewport={"width": 1366, "height": 768}, bypass_csp=True)
+    page = context.new_page()
+    try:
+        page.goto(slow_obstacle_url)
+        page.wait_for_function("window.flockPlay && flockPlay.frames > 5", timeout=30_000)
+        assert page.inner_text("#message") == ""
+        box = page.locator("#flock").bounding_box()
+        page.mouse.click(box["x"] + 0.5 * box["width"], box["y"] + 0.5 * box["height"])
+        started = time.monotonic()
+        page.wait_for_function("flockPlay.busy", timeout=5_000)
+        said = time.monotonic() - started
+        assert "compiles the simulation's code once on this machine" in page.inner_text("#message")
+        assert said < 2.4  # announced while the change was still being prepared (it takes 2.5 s)
+        page.wait_for_function("!flockPlay.busy && flockPlay.model.obstacles && flockPlay.model.obstacles.length === 1",
+                               timeout=10_000)
+        assert page.inner_text("#message") == ""  # the next frame took the notice away
     finally:
         context.close()

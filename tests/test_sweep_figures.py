@@ -77,11 +77,11 @@ def test_order_view_says_what_is_plotted(tmp_path, theme):
     assert [ax.get_ylabel() for ax in axes] == [r"order $\langle\varphi\rangle$", r"susceptibility $\chi$",
                                                r"Binder cumulant $G$"]
     assert legend_texts(axes[0]) == ["$N$ = 100", "$N$ = 400"]
-    assert fig._suptitle.get_text() == "Polar order of the 2D Vicsek model with angular noise"
+    assert fig._suptitle.get_text() == "2D Vicsek model with angular noise: order, susceptibility and Binder cumulant"
     text = caption(fig)
     for part in [r"$N$ = 100, 400", r"$\rho$ = 2", "$v_0$ = 0.5", "$R$ = 1", "backward update",
                  "40 steps, first 20 discarded", "mean of 3 replicas",
-                 "the larger of the within-run error (autocorrelation time) and the scatter between replicas"]:
+                 "the within-run one (autocorrelation time) or the replicas' scatter if larger"]:
         assert part in text, part
     # Binder reference lines: labelled, inside the axes, in the theme's text colour
     binder = axes[2]
@@ -169,10 +169,25 @@ def test_fss_view_marks_binder_crossings_and_fits_the_exponent(tmp_path):
     crossings = [x for line in left.get_lines() if line.get_marker() == "x" for x in line.get_xdata()]
     assert marks and crossings and all(abs(x - ETA_C) < 0.1 for x in crossings)
     assert right.get_xscale() == "log" and right.get_yscale() == "log"
-    fit = [t for t in legend_texts(right) if t.startswith("fit")][0]
+    fit = [t for t in legend_texts(right) if t.startswith("fit, 3 sizes:")][0]
     value, error = (float(v) for v in re.findall(r"[-\d.]+", fit.split("=")[1]))
     assert abs(value - GAMMA_NU) < max(4 * error, 0.05)  # the grid misses the peak only slightly here
     assert r"$\gamma/\nu$ = $d$ " + "\u00d7" + r" slope of $\ln\chi_{max}$ against $\ln N$" in caption(fig)
+
+
+def test_fss_view_marks_no_crossing_that_the_grid_does_not_resolve(tmp_path):
+    # curves that cross at 2.0, sampled at 1.9 and 2.1 (apart by many errors) and at three values
+    # within 0.001 of 2.0 (where they agree within their errors): the data swap the curves'
+    # order somewhere between 1.9 and 2.1, four grid steps, and do not place the crossing
+    grid = {"noise": [1.9, 1.999, 2.0, 2.001, 2.1], "n": [256, 4096]}
+    fig = draw(synthetic(tmp_path, grid, error=0.002), view="fss", theme="light")
+    assert not [line for line in fig.axes[0].get_lines() if line.get_marker() == "x"]
+    assert r"$N$ = 256 and 4096 swap order between $\eta$ = 1.9 and 2.1, no crossing resolved" in caption(fig)
+    # sampled at 1.9, 2.0 and 2.1: two grid steps, the crossing is marked between them
+    fine = draw(synthetic(tmp_path / "fine", {"noise": [1.9, 2.0, 2.1], "n": [256, 4096]}, error=0.002),
+                view="fss")
+    crossings = [x for line in fine.axes[0].get_lines() if line.get_marker() == "x" for x in line.get_xdata()]
+    assert len(crossings) == 1 and 1.9 < crossings[0] < 2.1 and "no crossing" not in caption(fine)
 
 
 @pytest.mark.parametrize("grid, options, message", [
@@ -211,6 +226,6 @@ def test_the_extension_chooses_the_format(tmp_path, ext, magic):
 def test_a_3d_sweep_draws_the_disordered_binder_value_of_3d(tmp_path):
     ds = synthetic(tmp_path, {"noise": [1.0, 2.0, 3.0]}, base={"dim": 3, "n": 100, "density": 1.0})
     fig = draw(ds)
-    assert fig._suptitle.get_text().startswith("Polar order of the 3D Vicsek model")
+    assert fig._suptitle.get_text() == "3D Vicsek model with angular noise: order, susceptibility and Binder cumulant"
     assert {"2/3 ordered", "4/9 disordered"} <= set(texts(fig.axes[2]))
     assert "1/3 disordered" not in texts(fig.axes[2])

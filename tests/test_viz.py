@@ -17,7 +17,7 @@ from flocking.cli import main
 from flocking.viz.colors import THEMES, angle_colors
 from flocking.viz.live import LiveView
 from flocking.viz.movie import write_movie, write_picture, write_plots
-from flocking.viz.render import Scene
+from flocking.viz.render import Scene, box_coordinates
 
 SRC = os.path.join(os.path.dirname(__file__), os.pardir, "src")
 
@@ -34,7 +34,7 @@ def make_frame(positions, angles, box=(20.0, 20.0), step=0):
 
 def pixel(scene, rgb, x, y):
     """The RGB of the pixel where data point (x, y) lands."""
-    px, py = scene.ax.transData.transform((x, y))
+    px, py = scene.ax.transData.transform(box_coordinates([x, y], scene.box))  # (x, y) centred, as frames are
     return rgb[int(round(rgb.shape[0] - py)), int(round(px))].astype(int)
 
 
@@ -102,26 +102,40 @@ def test_density_scene_has_a_colour_bar_that_covers_the_densest_region():
     assert "no order" in scene._key_label.get_text()
 
 
-def test_3d_scene_renders_rotates_and_turns_its_axis_triad():
+def test_3d_scene_renders_rotates_and_ticks_three_edges_in_box_coordinates():
     rng = np.random.default_rng(2)
     n = 500
     points = rng.uniform(-4, 4, (n, 3)).astype(np.float32)
     velocities = np.tile([0.5, 0.0, 0.0], (n, 1)).astype(np.float32)
     frame = flocking.Frame(10, 3, (8.0, 8.0, 8.0), points, velocities)
-    scene = Scene.for_frame(frame, size=3, dpi=100)
+    scene = Scene.for_frame(frame, size=3, dpi=100, color="heading")
     a = scene.draw(frame).rgb()
-    lines = scene.artist._triad[0]
-    before = [line.get_xydata().copy() for line in lines]
     b = scene.draw(frame, azim=30.0).rgb()
     assert scene.artist.style == "perspective" and a.shape[1] == 304
     reds = (a[..., 0] > a[..., 1] + 40) & (a[..., 0] > a[..., 2] + 40)
     assert reds.sum() > 500                                       # cones heading +x are red
     assert np.abs(a.astype(int) - b).sum() > 0                    # another camera angle, another picture
-    # the triad shows the axes as the camera sees them: z is straight up, x turns with the camera
-    x_axis, _, z_axis = [line.get_xydata() for line in lines]
-    assert abs(z_axis[1, 0] - z_axis[0, 0]) < 1e-9 and z_axis[1, 1] > z_axis[0, 1]
-    assert not np.allclose(before[0], x_axis)
-    assert [t.get_text() for t in scene.artist._triad[1]] == ["$x$", "$y$", "$z$"]
+    # each axis' ruler: ticks at the box coordinates 2 to 8 along an edge of the box, named with its unit
+    for axis, ticks, marks, labels, title in scene.artist.rulers:
+        assert ticks == [2.0, 4.0, 6.0, 8.0] and [t.get_text() for t in labels] == ["2", "4", "6", "8"]
+        assert title.get_text() == f"${'xyz'[axis]}$ (units of $R$)"
+    # the tick at coordinate v of the z ruler sits where the camera sees (corner, v - L/2), seen from 30 degrees
+    from flocking.viz.perspective import Camera
+
+    artist = scene.artist
+    cam = Camera(artist.box, artist.pixels, 30.0, 25.0, artist.zoom)
+    axis, ticks, marks, labels, title = artist.rulers[2]
+    x, y = marks.get_data()
+    corners = [np.array([sx, sy, 0.0]) * 4 for sx in (-1, 1) for sy in (-1, 1)]
+    corner = min(corners, key=lambda c: cam.project(c[None])[0][0])  # the leftmost vertical edge
+    u, v, _ = cam.project(corner + np.outer(np.array(ticks) - 4.0, [0, 0, 1]))
+    np.testing.assert_allclose(np.c_[x[::3], y[::3]], np.c_[u - 0.5, v - 0.5], atol=1e-9)
+    assert np.all(np.diff(y[::3]) < 0)                            # up the picture as z grows
+    figure = scene.figure.bbox  # every ruler's labels inside the picture
+    for *_, labels, title in artist.rulers:
+        for text in (*labels, title):
+            box = text.get_window_extent()
+            assert figure.x0 <= box.x0 and box.x1 <= figure.x1 and figure.y0 <= box.y0 and box.y1 <= figure.y1
 
 
 def test_mp4_decodes_with_frames_size_and_codec(run_dir, tmp_path):
@@ -326,7 +340,9 @@ def test_plot_frame_alone_takes_a_model_or_parameters():
     for parameters in (model, model.to_dict(), {"model": model.to_dict(), "steps": 10}):
         ax = flocking.plot_frame(frame, theme="light", parameters=parameters)
         caption = ax.figure._supxlabel.get_text()
-        assert r"$\eta$ = 0.7" in caption and "$k$ = 3 nearest" in caption and ax.get_xlim() == (-10.0, 10.0)
+        assert r"angular noise $\eta$ = 0.7" in caption and "$k$ = 3 nearest" in caption
+        assert caption.startswith(r"$\rho$ = 0.005 · ")  # N / L^2 = 2 / 400
+        assert ax.get_xlim() == ax.get_ylim() == (0.0, 20.0)  # box coordinates, as the engine's
         plt.close(ax.figure)
     with pytest.raises(flocking.ParameterError, match="theme"):
         flocking.plot_frame(frame, theme="neon")

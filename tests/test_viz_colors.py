@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flocking.viz.colors import (THEMES, angle_colors, heading_colors, relative_luminance, theme_of_color,
-                                 wheel_image)
+from flocking.viz.colors import (DEVIATION_FULL, THEMES, angle_colors, deviation_colors, deviation_parts,
+                                 heading_colors, relative_luminance, theme_of_color, wheel_image)
+from flocking.viz.local import local_headings
 
 
 def to_oklab(rgb):
@@ -84,3 +85,54 @@ def test_wheel_key_shows_the_colour_of_each_direction(dim):
 def test_theme_follows_the_background_it_is_drawn_on():
     assert theme_of_color("black").name == "dark" and theme_of_color("#f5f5f5").name == "light"
     assert theme_of_color((0.2, 0.2, 0.25)).name == "dark"
+
+
+def tilted(degrees_off, toward):
+    """Unit headings ``degrees_off`` from +x toward the unit vector ``toward`` (perpendicular to x)."""
+    a = np.radians(degrees_off)
+    return np.cos(a)[:, None] * [1.0, 0.0, 0.0] + np.sin(a)[:, None] * np.asarray(toward, float)
+
+
+def test_deviation_angle_and_direction_of_constructed_turns():
+    # about a mean along +x: turns toward +z are "up" (90 degrees), toward +y and -y opposite sideways
+    up, side, down = tilted(np.array([12.0]), [0, 0, 1]), tilted(np.array([5.0]), [0, 1, 0]), \
+        tilted(np.array([30.0]), [0, 0, -1])
+    headings = np.vstack([up, side, down])
+    angle, direction = deviation_parts(headings, mean=[1.0, 0.0, 0.0])
+    np.testing.assert_allclose(np.degrees(angle), [12.0, 5.0, 30.0], atol=1e-9)
+    np.testing.assert_allclose(np.degrees(direction)[[0, 2]], [90.0, -90.0], atol=1e-9)
+    assert abs(abs(np.degrees(direction[1])) - 180.0) < 1e-9 or abs(np.degrees(direction[1])) < 1e-9
+    # colours: grey along the mean, the heading circle's colour at full strength from DEVIATION_FULL on
+    t = THEMES["light"]
+    along = deviation_colors(np.array([[1.0, 0.0, 0.0]]), t, mean=[1.0, 0.0, 0.0])
+    np.testing.assert_allclose(along[0], angle_colors(0.0, t, 0.0), atol=1e-12)
+    full = tilted(np.array([np.degrees(DEVIATION_FULL), 80.0]), [0, 0, 1])
+    np.testing.assert_allclose(deviation_colors(full, t, mean=[1.0, 0.0, 0.0]),
+                               angle_colors(np.full(2, np.pi / 2), t), atol=1e-12)
+    half = tilted(np.array([np.degrees(DEVIATION_FULL) / 2]), [0, 0, 1])
+    np.testing.assert_allclose(deviation_colors(half, t, mean=[1.0, 0.0, 0.0]),
+                               angle_colors(np.pi / 2, t, 0.5)[None], atol=1e-12)
+
+
+def test_deviation_of_a_flock_without_mean_heading_is_zero():
+    angle, direction = deviation_parts(np.array([[1.0, 0.0], [-1.0, 0.0]]))
+    assert angle.tolist() == [0.0, 0.0] and direction.tolist() == [0.0, 0.0]
+
+
+@pytest.mark.parametrize("walls", [(True, False), (False, False)])
+def test_local_headings_average_over_a_neighbourhood_and_not_across_walls(walls):
+    # a strip along each side x = 0 and x = L, heading +y and +x: a wall keeps them apart,
+    # a periodic side makes them neighbours, whose local mean points between the two
+    rng = np.random.default_rng(4)
+    box = (32.0, 32.0)
+    x = np.concatenate([rng.uniform(-16, -14, 3000), rng.uniform(14, 16, 3000)])
+    positions = np.c_[x, rng.uniform(-16, 16, 6000)]
+    own = np.where((x < 0)[:, None], [[0.0, 1.0]], [[1.0, 0.0]])
+    local = local_headings(positions, own, box, walls)
+    edge = np.abs(np.abs(x) - 16) < 0.3  # the particles right at the box's sides
+    agreement = np.einsum("ij,ij->i", local[edge], own[edge])
+    if walls[0]:
+        assert agreement.min() > 0.999  # each strip keeps its own heading
+    else:
+        assert 0.6 < agreement.mean() < 0.95  # pulled toward the other strip's, 45 degrees off at most
+    np.testing.assert_allclose(np.linalg.norm(local, axis=1), 1.0, atol=1e-12)

@@ -16,7 +16,7 @@ from flocking.viz.density import DensityField
 from flocking.viz.extensions import obstacle_images, species_colors
 from flocking.viz.live import frame_of
 from flocking.viz.perspective import perspective_image
-from flocking.viz.render import Scene, plot_frame
+from flocking.viz.render import Scene, box_coordinates, plot_frame
 
 BOX = (20.0, 20.0)
 OBSTACLE = [4.0, 3.0, 3.0]  # centre (centred coordinates), radius
@@ -42,7 +42,7 @@ def grid_frame(spacing=1.0, **options):
 
 
 def pixel(scene, rgb, x, y):
-    px, py = scene.ax.transData.transform((x, y))
+    px, py = scene.ax.transData.transform(box_coordinates([x, y], scene.box))  # (x, y) centred, as frames are
     return rgb[int(round(rgb.shape[0] - py)), int(round(px))].astype(int)
 
 
@@ -190,7 +190,7 @@ def test_3d_obstacles_are_spheres_that_hide_particles_and_wall_edges_stand_out()
 
 def test_color_is_refused_in_one_line_everywhere(tmp_path):
     frame = frame_2d([[0.0, 0.0]], [0.0])
-    message = "color: must be one of auto, heading, species (got 'rainbow')"
+    message = "color: must be one of auto, heading, species, deviation (got 'rainbow')"
     for call in (lambda: Scene.for_frame(frame, color="rainbow"), lambda: plot_frame(frame, color="rainbow"),
                  lambda: flocking.viz.LiveView(color="rainbow")):
         with pytest.raises(ParameterError) as err:
@@ -221,15 +221,19 @@ def test_a_run_with_extensions_draws_them_from_the_command_line(tmp_path):
         scene.draw(traj[-1])
     snapshot = np.asarray(Image.open(out / "snapshot.png").convert("RGB"))
     assert snapshot.shape[:2] == (scene.pixels[1], scene.pixels[0])
-    assert near(pixel(scene, snapshot, 0.0, 0.0), THEMES["dark"].obstacle, 10)  # the obstacle, at the centre
-    assert near(pixel(scene, snapshot, -6.0, 0.0), THEMES["dark"].text, 20)  # the wall (2 pixels wide at 60 dpi)
-    for colour in ("heading", "species"):
+    # the obstacle where the config put it, centre (6, 6): the axes show box coordinates, 0 to L
+    assert scene.ax.get_xlim() == scene.ax.get_ylim() == (0.0, 12.0)
+    px, py = scene.ax.transData.transform((6.0, 6.0))
+    assert near(snapshot[int(round(snapshot.shape[0] - py)), int(round(px))], THEMES["dark"].obstacle, 10)
+    px, py = scene.ax.transData.transform((0.0, 6.0))  # the wall at x = 0 (2 pixels wide at 60 dpi)
+    assert near(snapshot[int(round(snapshot.shape[0] - py)), int(round(px))], THEMES["dark"].text, 20)
+    for colour in ("heading", "species", "deviation"):
         movie = tmp_path / f"{colour}.mp4"
         r = runner.invoke(main, ["animate", str(out), "-o", str(movie), "--color", colour, "--size", "2", "-q"])
         assert r.exit_code == 0 and movie.stat().st_size > 0, r.output
     r = runner.invoke(main, ["animate", str(out), "-o", str(tmp_path / "x.png"), "--color", "stripes"])
     assert r.exit_code == 2 and r.output.strip().splitlines() == [
-        "Error: --color: must be one of auto, heading, species (got 'stripes')"]
+        "Error: --color: must be one of auto, heading, species, deviation (got 'stripes')"]
     assert not os.path.exists(tmp_path / "x.png")
 
 

@@ -167,3 +167,24 @@ def test_polar_order_figure_shows_the_error_of_the_mean_not_the_spread(theme):
     assert ax.get_ylabel() == style.LABELS["phi"] and ax.get_xlabel() == style.LABELS["step"]
     fig.canvas.draw()
     assert overflow(fig) <= 1.0
+
+
+def test_the_throughput_figure_is_in_the_house_style_and_names_machine_and_threads(tmp_path, monkeypatch):
+    from flocking import bench
+
+    rows = [dict(group="2d-metric", n=n, init=init, implementation=impl, threads=2, repeats=3,
+                 particle_steps_per_s=rate * n ** 0.01)
+            for impl, rate in (("flocking", 2e7), ("kdtree", 5e5)) for init in ("random", "clustered")
+            for n in (10**4, 10**5)]
+    result = {"machine": {"cpu": "Test CPU 9000", "cores": 2, "numba": "0.0"}, "rows": rows}
+    shown = {}
+    monkeypatch.setattr(style, "save", lambda fig, path, dpi=None: shown.setdefault("fig", fig))
+    bench.plot(result, tmp_path / "t.png", theme="dark")
+    fig = shown["fig"]
+    ax = fig.axes[0]
+    caption = fig._supxlabel.get_text().replace("\n", " ")
+    assert "Test CPU 9000, 2 cores" in caption and "2 threads for every implementation" in caption
+    assert ax.get_xscale() == ax.get_yscale() == "log" and ax.get_xlabel() == "particles $N$"
+    assert {line.get_color() for line in ax.get_lines()} <= set(style.palette("dark"))
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [
+        "flocking, random start", "flocking, clustered start", "kdtree, random start", "kdtree, clustered start"]

@@ -220,9 +220,19 @@ def main(argv: list[str] | None = None) -> int:
             make(fig)
         else:
             fig["digests"] = current(fig)
-        dump(figures)
+        store(fig)
         print(f"figures: recorded {fig['path']}", file=sys.stderr)
     return 0
+
+
+def store(fig: dict) -> None:
+    """Write ``fig``'s digests into the manifest as it is on disk now: a ``make`` of another
+    figure that ran meanwhile (in another shell) keeps what it recorded."""
+    figures = load()
+    for other in figures:
+        if other["path"] == fig["path"]:
+            other["digests"] = fig["digests"]
+    dump(figures)
 
 
 if __name__ == "__main__":

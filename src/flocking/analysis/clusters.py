@@ -137,19 +137,27 @@ class Clusters(Analysis):
         return self
 
     def plot(self, ax=None, theme=None):
-        """Clusters of each size per frame, log-log, with the two average sizes marked."""
+        """The number of clusters per frame and unit size, in bins of sizes 1, 2-3, 4-7, ...
+        (doubling, so that the sparse large sizes are counted together), log-log, with the
+        two average sizes marked; the legend above the tail of a falling distribution."""
         from ..viz import style
 
         ax, theme = self._axes(ax, theme)
         colours = style.palette(theme)
-        ax.loglog(self.size_values, self.size_counts_per_frame, "o", ms=3.5, color=colours[0],
-                  label=f"mean of {self.num_frames} frame{'s' * (self.num_frames > 1)}")
+        edges = 2 ** np.arange(int(np.log2(max(self.size_values.max(), 1))) + 2)  # 1, 2, 4, ...
+        per_bin = np.histogram(self.size_values, edges, weights=self.size_counts_per_frame)[0]
+        width = np.diff(edges)
+        shown = per_bin > 0
+        ax.loglog(np.sqrt(edges[:-1] * (edges[1:] - 1))[shown], (per_bin / width)[shown], "o-", ms=3.5, lw=0.9,
+                  color=colours[0], label=f"mean of {self.num_frames} frame{'s' * (self.num_frames > 1)}")
+        ax.plot([], [], " ", color=colours[-1], label="sizes binned 1, 2-3, 4-7, ...")
         ax.axvline(self.number_average_size, color=colours[1], ls="--", lw=1,
                    label=rf"$\langle s\rangle_n = {format_value(self.number_average_size)}$")
         ax.axvline(self.weight_average_size, color=colours[2], ls=":", lw=1.2,
                    label=rf"$\langle s\rangle_w = {format_value(self.weight_average_size)}$")
         ax.plot([], [], " ", color=colours[-1], label=f"largest: {self.largest_fraction_mean:.3f} $N$")
-        style.label_axes(ax, "cluster_size", r"clusters per frame $n_s$")
+        style.label_axes(ax, "cluster_size", r"clusters per frame and size $n(s)$")
         log_ticks(ax)
-        legend(ax, theme)
+        style.legend(ax, theme, loc="upper right", frameon=True, facecolor=ax.get_facecolor(), edgecolor="none",
+                     framealpha=0.8)
         return ax

@@ -182,8 +182,9 @@ class NumberFluctuations(Analysis):
         colours = style.palette(theme)
         if not self.fitted.all():
             ax.loglog(self.mean[~self.fitted], self.std[~self.fitted], "o", ms=3.5, mfc="none", color=colours[0],
-                      label="not fitted")
-        ax.loglog(self.mean[self.fitted], self.std[self.fitted], "o", ms=3.5, color=colours[0], label="fitted")
+                      label="measured, left out of the fit")
+        ax.loglog(self.mean[self.fitted], self.std[self.fitted], "o", ms=3.5, color=colours[0],
+                  label="measured" + (", fitted" if not self.fitted.all() else ""))
         x = self.mean[self.fitted]
         if len(x) >= 2:
             ax.loglog(x, np.exp(self.intercept) * x**self.alpha, "-", color=colours[1], lw=1.2,

@@ -355,7 +355,8 @@ class _Order(Analysis):
         return rf"{self._symbol}_{{\mathrm{{{mathtext_text(self.species)}}}}}"
 
     def plot(self, ax=None, theme=None):
-        """The series against time, the window shaded, and the mean with its error."""
+        """The series against time, the window shaded, and the mean over it (drawn across
+        the window only) with its error."""
         from ..viz import style
 
         ax, theme = self._axes(ax, theme)
@@ -363,9 +364,9 @@ class _Order(Analysis):
         symbol = self._symbol_of()
         ax.plot(self.times, self.series, lw=0.8, color=colours[0], label=rf"${symbol}(t)$")
         w = self.times[self.window]
-        ax.axvspan(w[0], w[-1], color=colours[0], alpha=0.12, lw=0, label=f"window ({self.window_rule})")
-        ax.axhline(self.mean, color=colours[1], lw=1.2,
-                   label=rf"$\langle {symbol}\rangle = {format_value(self.mean, self.mean_error)}$")
+        style.shade_window(ax, w[0], w[-1], theme, label=f"window ({self.window_rule})")
+        ax.plot(w[[0, -1]], [self.mean, self.mean], color=colours[1], lw=1.4, ls="--",
+                label=rf"$\langle {symbol}\rangle = {format_value(self.mean, self.mean_error)}$")
         style.label_axes(ax, "time", self._axis_label)
         legend(ax, theme)
         return ax
@@ -553,7 +554,7 @@ class PerSpecies(Analysis):
         ax, theme = self._axes(ax, theme)
         colours = style.palette(theme)
         w = self.times[self.window]
-        ax.axvspan(w[0], w[-1], color=colours[-1], alpha=0.1, lw=0, label=f"window ({self.window_rule})")
+        style.shade_window(ax, w[0], w[-1], theme, label=f"window ({self.window_rule})")
         for i, name in enumerate(self.names):
             order = self.orders[name]
             colour = colours[i % (len(colours) - 1)]

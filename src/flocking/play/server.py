@@ -21,6 +21,15 @@ closed with code 1013 ("try again later"); the server goes on.
 
 A socket whose ``Origin`` is another site is refused, so a web page elsewhere cannot
 drive the simulation on this machine.
+
+numba compiles each kernel the first time it runs on a machine (then caches it), which
+took about 21 s for the kernels of walls, obstacles, species and vision cones, and
+longer on a busy machine: the first obstacle dropped froze the flock that long. So the
+app compiles every kernel a page can switch to ahead, in a background thread, once per
+process (:func:`warm_kernels`, over :func:`warm_models`; a second or so when they are
+cached); and when a change still takes longer than :data:`BUSY_SECONDS` (the warm-up has
+not reached it yet), the tab is told (``{"type": "busy", "message": ...}``) and says so
+until its next frame comes.
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ import contextlib
 import json
 import logging
 import pathlib
+import threading
 from urllib.parse import urlsplit
 
 from starlette.applications import Starlette
@@ -53,6 +63,14 @@ TRY_LATER = 1013  # WebSocket close code: the server is busy, try again later
 #: how long a new tab waits for memory or a place before it is refused, asking every
 #: ADMIT_POLL seconds: a tab closed just before is given back within that
 ADMIT_SECONDS, ADMIT_POLL = 2.0, 0.1
+#: a change that takes longer than this is announced to its tab
+BUSY_SECONDS = 1.0
+BUSY_MESSAGE = ("Preparing these settings: the first use of walls, obstacles, a second species, a vision "
+                "cone or k nearest neighbours compiles the simulation's code once on this machine (up to a "
+                "minute or two); the flock goes on as soon as it is done.")
+#: the background warm-up of :func:`warm_kernels` (one per process), once started
+_warming: threading.Thread | None = None
+_warming_lock = threading.Lock()
 
 
 def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16, memory: int = DEFAULT_MEMORY,
@@ -62,6 +80,7 @@ def create_app(model: Model, *, fps: float = 60.0, max_sessions: int = 16, memor
     ``memory`` (bytes) and ``cores`` (default: numba's threads) are what all tabs share.
     """
     check_step(check_limits(model), State.random(model).positions, "radius" if model.neighbours == "metric" else "k")
+    start_warming()
     budget = Budget(memory=memory, cores=cores, tabs=max_sessions)
     sessions: dict[Session, asyncio.Task] = {}  # each tab's session and its stepping task
 
@@ -134,7 +153,11 @@ async def stream(ws: WebSocket, session: Session, wake: asyncio.Event, period: f
         step = session.running and now >= due
         if step or (session.pending() and now >= apply):
             try:
-                await asyncio.to_thread(session.work, step)
+                work = asyncio.ensure_future(asyncio.to_thread(session.work, step))
+                done, _ = await asyncio.wait({work}, timeout=BUSY_SECONDS)
+                if not done:  # a tab that went away meanwhile is noticed at the next send
+                    await send(ws, {"type": "busy", "message": BUSY_MESSAGE})
+                await work
             except Exception as err:  # a bug costs this tab, not the server
                 logging.getLogger("flocking.play").exception("a tab's simulation failed")
                 if await send(ws, {"type": "refused", "message": f"internal error ({type(err).__name__}); "
@@ -183,3 +206,37 @@ def same_origin(origin: str | None, host: str | None) -> bool:
         return urlsplit(origin).netloc.lower() == (host or "").lower()
     except ValueError:
         return False
+
+
+def warm_models() -> list[Model]:
+    """Small models whose first steps compile every kernel a page can switch to: plain and
+    extended (an obstacle in 2D, a wall in 3D), metric and topological neighbours, in 2D
+    and 3D. The other options (delay, vectorial noise, species, vision cones, ...) run in
+    one of these kernels."""
+    models = []
+    for dim in (2, 3):
+        for neighbours in ({"neighbours": "metric"}, {"neighbours": "topological", "k": 7}):
+            base = {"dim": dim, "n": 64, "box": 8.0, **neighbours}
+            extended = {"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]} if dim == 2 else {"boundary": "wall"}
+            models += [Model(**base), Model(**base, **extended)]
+    return models
+
+
+def warm_kernels(models: list[Model] | None = None) -> None:
+    """Take two steps of each of ``models`` (default :func:`warm_models`) on the cpu
+    backend: numba compiles, or loads from its cache, what they run."""
+    from ..simulation import Simulation
+
+    for model in warm_models() if models is None else models:
+        Simulation(model, backend="cpu").run(2)
+
+
+def start_warming() -> threading.Thread:
+    """:func:`warm_kernels` in a background thread, started by the first call in a process;
+    the thread (a daemon: it never holds the server open)."""
+    global _warming
+    with _warming_lock:
+        if _warming is None:
+            _warming = threading.Thread(target=warm_kernels, name="flocking-play-warm-up", daemon=True)
+            _warming.start()
+        return _warming

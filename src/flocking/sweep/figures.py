@@ -4,9 +4,11 @@ Two views of a results Dataset (:mod:`flocking.sweep.results`):
 
 - ``order``: the order ``<phi>``, the susceptibility ``chi`` and the Binder cumulant ``G``
   against one swept parameter, one curve per value of the others (per system size);
-- ``fss``: finite-size scaling: ``G`` against the control parameter for every size, where
-  the curves of successive sizes cross marked, and the largest ``chi`` on the grid
-  against the size on log-log axes with the fitted exponent ``gamma / nu``.
+- ``fss``: finite-size scaling: ``G`` against the control parameter for every size, with
+  a crossing of the curves of successive sizes marked only where the grid resolves it
+  (they swap order within two grid steps, apart by 3 errors at both ends; a swap across
+  a wider stretch is named in the caption, not marked), and the largest ``chi`` on the
+  grid against the size on log-log axes with the fitted exponent ``gamma / nu``.
 
 Points are means over replicas; their error bars combine each run's own error (from its
 autocorrelation time) with the scatter between replicas (:func:`flocking.sweep.stats.combine`).
@@ -111,7 +113,7 @@ def _order(ds, x, theme, size):
     elif combos and curves:
         style.legend(axes[0], theme)
     _binder_references(axes[2], theme, setup.single("dim"))
-    style.title(fig, f"Polar order of the {setup.model_name()}",
+    style.title(fig, f"{setup.model_name()}: order, susceptibility and Binder cumulant",
                 " \u00b7 ".join(setup.caption(exclude=(x,)) + [setup.error_caption()]))
     return fig
 
@@ -144,13 +146,19 @@ def _fss(ds, x, theme, size):
     labels = [setup.value_label(key, v) for v in ds[key].values]
     for k, label in enumerate(labels):
         _errorbar(left, xs, mean_g[k], error_g[k], colours[k % len(colours)], label, fig)
-    marked = False
+    marked, unresolved = False, []
     for k in range(len(labels) - 1):
-        crossing = _significant_crossing(xs, mean_g[k], error_g[k], mean_g[k + 1], error_g[k + 1])
-        if crossing is not None:
-            left.plot(*([v] for v in crossing), marker="x", ms=1.2 * style.fontsize(fig), mew=1.5, ls="none",
-                      color=_text_colour(theme), label=None if marked else "crossing", zorder=5)
-            marked = True
+        swap = _order_swap(xs, mean_g[k], error_g[k], mean_g[k + 1], error_g[k + 1])
+        if swap is None:
+            continue
+        x0, x1, crossing = swap
+        if crossing is None:
+            unresolved.append(f"{labels[k]} and {_number(ds[key].values[k + 1], 3)} swap order between "
+                              f"{setup.symbol(x)} = {_number(x0, 3)} and {_number(x1, 3)}, no crossing resolved")
+            continue
+        left.plot(*([v] for v in crossing), marker="x", ms=1.2 * style.fontsize(fig), mew=1.5, ls="none",
+                  color=_text_colour(theme), label=None if marked else "crossing", zorder=5)
+        marked = True
     style.label_axes(left, setup.axis_label(x), "binder")
     _scale(left, x, xs)
     style.legend(left, theme)
@@ -166,7 +174,7 @@ def _fss(ds, x, theme, size):
     if math.isfinite(slope):
         grid = np.geomspace(n[ok].min(), n[ok].max(), 50)
         right.plot(grid, np.exp(intercept) * grid**slope, color=colours[1], lw=1.2, ls="--",
-                   label=rf"fit: $\gamma/\nu$ = {dim * slope:.2f} $\pm$ {dim * slope_error:.2f}")
+                   label=rf"fit, {int(ok.sum())} sizes: $\gamma/\nu$ = {dim * slope:.2f} $\pm$ {dim * slope_error:.2f}")
     _scale(right, "n", n[ok])
     right.set_yscale("log")
     _log_ticks(right.yaxis)
@@ -174,28 +182,43 @@ def _fss(ds, x, theme, size):
     style.legend(right, theme)
     caption = setup.caption(exclude=(x,)) + [
         setup.error_caption(),
-        *(["\u00d7: crossing of successive sizes (apart by 3 errors on both sides)"]
+        *(["\u00d7: crossing of successive sizes (apart by 3 errors within two grid steps of it)"]
           if marked else []),
+        *unresolved,
         rf"$\chi_{{max}}$: largest mean $\chi$ on the grid of {setup.symbol(x)}; $\gamma/\nu$ = $d$ " + "\u00d7"
         + rf" slope of $\ln\chi_{{max}}$ against $\ln N$ at fixed density ($d$ = {dim})"]
     style.title(fig, f"Finite-size scaling of the {setup.model_name()}", " \u00b7 ".join(caption))
     return fig
 
 
-def _significant_crossing(x, a, ea, b, eb):
-    """``(x, G)`` where two curves cross for sure, or ``None``: ``b - a`` changes sign between
-    two samples at which the curves differ by more than three combined errors (the noise of
-    curves lying on top of each other does not count); of several, the one with the
-    largest differences on both sides."""
+def _order_swap(x, a, ea, b, eb):
+    """Where curve ``b`` swaps order with curve ``a`` for sure: ``(x0, x1, crossing)``, the
+    grid values between which ``b - a`` changes sign, both differences larger than three
+    combined errors (curves lying on each other's noise do not count), and the crossing
+    ``(x, G)`` when ``x0`` and ``x1`` are at most two grid steps apart (``None`` when more
+    values between them differ by less: the data do not place it); of several swaps,
+    the one with the largest differences on both sides; ``None`` when they never swap.
+
+    >>> x = np.arange(5.0)
+    >>> a, b, e = np.zeros(5), np.array([0.1, 0.1, -0.1, -0.1, -0.1]), np.full(5, 0.01)
+    >>> _order_swap(x, a, e, b, e)
+    (1.0, 2.0, (1.5, 0.0))
+    >>> b[1] = b[2] = 0.0   # the swap is somewhere between x = 0 and 3
+    >>> _order_swap(x, a, e, b, e)
+    (0.0, 3.0, None)
+    """
     d = np.asarray(b) - np.asarray(a)
     z = np.abs(d) / np.hypot(np.nan_to_num(ea), np.nan_to_num(eb))
     significant = np.flatnonzero(np.isfinite(d) & (z > 3))
     best, strength = None, 0.0
     for i, j in zip(significant[:-1], significant[1:]):
-        found = stats.crossings(x[i:j + 1], a[i:j + 1], b[i:j + 1]) if d[i] * d[j] < 0 else []
-        if found and min(z[i], z[j]) > strength:
-            xc = found[len(found) // 2]
-            best, strength = (xc, float(np.interp(xc, x, a))), min(z[i], z[j])
+        if d[i] * d[j] < 0 and min(z[i], z[j]) > strength:
+            crossing = None
+            if j - i <= 2:
+                found = stats.crossings(x[i:j + 1], a[i:j + 1], b[i:j + 1])
+                xc = found[len(found) // 2]
+                crossing = (float(xc), float(np.interp(xc, x, a)))
+            best, strength = (float(x[i]), float(x[j]), crossing), min(z[i], z[j])
     return best
 
 
@@ -315,8 +338,8 @@ class _Setup:
     def error_caption(self) -> str:
         reps = f"mean of {self.replicas} replica{'s' * (self.replicas != 1)}"
         if self.has_errors:
-            return (f"{reps}; bars: \u00b11 error, the larger of the within-run error (autocorrelation "
-                    f"time) and the scatter between replicas")
+            return (f"{reps}; bars: \u00b11 error, the within-run one (autocorrelation time) or the "
+                    f"replicas' scatter if larger")
         return f"{reps}; bars: standard error over replicas (no within-run errors in this file)"
 
     def _discarded(self, steps: int) -> int:

@@ -12,6 +12,11 @@ In 3D the hue is the azimuth in the xy plane and the colour turns grey (the same
 lightness, no chroma) as the heading tilts toward +-z, so the key is a disc whose
 grey centre means "vertical".
 
+An ordered flock has nearly one heading, so it takes nearly one colour. Its structure
+shows in how the local mean heading turns off the flock's mean heading
+(:func:`deviation_colors`): on the same disc as 3D's key, grey along the mean, the hue
+for the direction of the turn.
+
 >>> rgb = heading_colors(np.array([[1.0, 0.0], [-1.0, 0.0]]), THEMES["dark"])
 >>> rgb.round(2).tolist()
 [[0.94, 0.54, 0.49], [0.08, 0.75, 0.84]]
@@ -141,3 +146,48 @@ def wheel_image(size: int, dim: int, theme: Theme, ink: bool = False) -> np.ndar
         alpha = np.minimum(alpha, np.clip((r - inner) / edge, 0, 1))
     rgba[..., 3] = alpha
     return rgba
+
+
+#: The angle to the mean heading (radians) at which a deviation's colour is full (a
+#: local mean heading's: :mod:`.local`).
+DEVIATION_FULL = np.radians(10.0)
+
+
+def deviation_parts(headings: np.ndarray, mean=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(angle, direction)`` of each of ``(N, d)`` unit headings off the mean heading
+    ``m`` (``mean``, default theirs): the angle between them (radians, in [0, pi]), and
+    the direction of the turn (radians), seen along ``m`` with "up" at 90 degrees: +z
+    made perpendicular to ``m`` in 3D (+x when ``m`` is vertical), ``m`` turned a
+    quarter counter-clockwise in 2D. A zero mean leaves every angle and direction 0.
+
+    >>> angle, direction = deviation_parts(np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0]]))
+    >>> np.degrees(angle).round(1).tolist(), np.degrees(direction).round(1).tolist()
+    ([26.6, 63.4, 26.6], [-90.0, 90.0, -90.0])
+    """
+    u = np.asarray(headings, dtype=float)
+    n, dim = u.shape
+    mean = u.sum(axis=0) if mean is None else np.asarray(mean, dtype=float)
+    norm = np.linalg.norm(mean)
+    if n == 0 or norm == 0:
+        return np.zeros(n), np.zeros(n)
+    m = mean / norm
+    if dim == 2:
+        up, right = np.array([-m[1], m[0]]), m  # the second only breaks ties: a turn is up or down
+    else:
+        z = np.array([0.0, 0.0, 1.0]) if abs(m[2]) < 0.999 else np.array([1.0, 0.0, 0.0])
+        up = z - (z @ m) * m
+        up /= np.linalg.norm(up)
+        right = np.cross(up, m)
+    along = u @ m
+    across_up, across_right = u @ up, (u @ right if dim == 3 else np.zeros(n))
+    return np.arctan2(np.hypot(across_up, across_right), along), np.arctan2(across_up, across_right)
+
+
+def deviation_colors(headings: np.ndarray, theme: Theme, mean=None) -> np.ndarray:
+    """``(N, 3)`` RGB of ``(N, d)`` unit headings by how they turn off the mean heading
+    (:func:`deviation_parts`): the hue of the direction of the turn, on the heading
+    circle, with a chroma that grows from grey (along the mean) to full at
+    :data:`DEVIATION_FULL`. Given the local mean headings (:mod:`.local`), regions that
+    turn alike share a colour: the correlated fluctuations of an ordered flock."""
+    angle, direction = deviation_parts(headings, mean)
+    return angle_colors(direction, theme, np.clip(angle / DEVIATION_FULL, 0.0, 1.0))

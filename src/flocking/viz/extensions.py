@@ -23,8 +23,8 @@ from ..model import ParameterError
 from .colors import Theme, get_theme
 
 #: What particles can be coloured by: ``auto`` is ``species`` for a frame with several
-#: species, ``heading`` otherwise.
-COLORS = ("auto", "heading", "species")
+#: species, else ``deviation`` (the angle to the mean heading) in 3D and ``heading`` in 2D.
+COLORS = ("auto", "heading", "species", "deviation")
 
 
 def check_color(color: str) -> str:
@@ -33,11 +33,15 @@ def check_color(color: str) -> str:
     return color
 
 
-def choose_color(color: str, types) -> str:
-    """Resolve ``auto`` for a frame whose species are named ``types``."""
+def choose_color(color: str, types, dim: int = 2) -> str:
+    """Resolve ``auto`` for a ``dim``-dimensional frame whose species are named ``types``.
+
+    >>> choose_color("auto", ("A",), 2), choose_color("auto", ("A",), 3), choose_color("auto", ("A", "B"), 3)
+    ('heading', 'deviation', 'species')
+    """
     color = check_color(color)
     if color == "auto":
-        return "species" if len(types) > 1 else "heading"
+        return "species" if len(types) > 1 else ("deviation" if dim == 3 else "heading")
     return color
 
 

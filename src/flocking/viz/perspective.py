@@ -41,10 +41,11 @@ class Camera:
     """A perspective camera looking at the centre of a box from ``azim``/``elev`` degrees.
 
     Camera coordinates: ``x`` to the right of the picture, ``y`` up, ``z`` the depth
-    (distance along the line of sight). The box's bounding sphere always fits the view.
+    (distance along the line of sight). The box's bounding sphere always fits the view;
+    ``zoom`` below 1 leaves a margin around it (for labels).
     """
 
-    def __init__(self, box_lengths, size: int, azim: float = -60.0, elev: float = 25.0):
+    def __init__(self, box_lengths, size: int, azim: float = -60.0, elev: float = 25.0, zoom: float = 1.0):
         self.size = int(size)
         lengths = np.asarray(box_lengths, dtype=float)
         self.diagonal = float(np.linalg.norm(lengths))
@@ -57,7 +58,7 @@ class Camera:
         self.right = right / np.linalg.norm(right)
         self.up = np.cross(self.right, self.forward)
         half = 0.5 * self.diagonal
-        self.focal = 0.5 * self.size * 1.02 * math.sqrt(self.distance**2 - half**2) / half
+        self.focal = 0.5 * self.size * 1.02 * math.sqrt(self.distance**2 - half**2) / half * zoom
         self.near = self.distance - half
         self.far = self.distance + half
 
@@ -283,17 +284,19 @@ def _spheres(cam: Camera, spheres: np.ndarray, albedo, lengths, depth: np.ndarra
 def perspective_image(points: np.ndarray, headings: np.ndarray, box_lengths, size: int,
                       theme: Theme, azim: float = -60.0, elev: float = 25.0,
                       length: float | None = None, colors: np.ndarray | None = None,
-                      supersample: int = 2, walls=(False, False, False), obstacles=None) -> np.ndarray:
+                      supersample: int = 2, walls=(False, False, False), obstacles=None,
+                      zoom: float = 1.0) -> np.ndarray:
     """``size x size`` RGB image of a 3D frame (points centred in the box).
 
     ``length`` is the cone length in world units (default :func:`glyph_length`);
     ``colors`` are ``(N, 3)`` RGB albedos (default: by heading); ``walls`` (per axis)
-    mark the edges of wall faces; ``obstacles`` are spheres (rows: centre, radius).
+    mark the edges of wall faces; ``obstacles`` are spheres (rows: centre, radius);
+    ``zoom`` as :class:`Camera`'s.
     """
     ss = max(1, int(supersample))
     big = int(size) * ss
     lengths = np.asarray(box_lengths, dtype=float)
-    cam = Camera(lengths, big, azim, elev)
+    cam = Camera(lengths, big, azim, elev, zoom)
     points = np.asarray(points, float).reshape(-1, 3)
     headings = np.asarray(headings, float).reshape(-1, 3)
     n = len(points)

@@ -56,17 +56,18 @@ LABELS = {
     "eta": r"noise $\eta$",
     "n": "particles $N$",
     "density": r"density $\rho$",
-    "r": "distance $r$",
+    "r": "distance $r$ (units of $R$)",
     "corr": "$C(r)$",
     "mean_count": r"$\langle n\rangle$",
     "count_std": r"$\Delta n$",
     "lag": r"lag $\tau$",
-    "msd": r"$\langle|\Delta\mathbf{r}|^2\rangle$",
-    "box_size": r"box size $\ell$",
+    "msd": r"$\langle|\Delta\mathbf{r}|^2\rangle$ (units of $R^2$)",
+    "box_size": r"box size $\ell$ (units of $R$)",
     "boxes": r"occupied boxes $N(\ell)$",
     "cluster_size": "cluster size $s$",
-    "x": "$x$",
-    "y": "$y$",
+    "x": "$x$ (units of $R$)",
+    "y": "$y$ (units of $R$)",
+    "z": "$z$ (units of $R$)",
     "profile": r"density $\rho(x)$",
 }
 
@@ -183,6 +184,15 @@ def legend(ax, theme="dark", **options):
     options.setdefault("fontsize", 0.85 * fontsize(ax.figure))
     options.setdefault("frameon", False)
     return ax.legend(labelcolor=t.text, **options)
+
+
+def shade_window(ax, start: float, stop: float, theme="dark", label: str | None = None):
+    """Shade the stretch ``[start, stop]`` of the x axis that a mean is taken over: a
+    band in the theme's edge colour, plain to see on either background, outlined in it.
+    Returns the band."""
+    t = get_theme(theme)
+    fill = (*t.edge, 0.35 if t.name == "dark" else 0.22)
+    return ax.axvspan(start, stop, facecolor=fill, edgecolor=t.edge, lw=0.9, label=label, zorder=0)
 
 
 def visible_length(text: str) -> int:

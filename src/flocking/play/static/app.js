@@ -12,7 +12,7 @@ const NOISE_SCALE = { angular: ["0: none", "π", "2π: random"], vectorial: ["0:
 
 // what tests and curious users can read in the console
 const stats = { frames: 0, fps: 0, drawMs: 0, step: 0, phi: 0, n: 0, dim: 2, running: true, errors: [], model: null,
-                refused: null, plot };
+                refused: null, busy: false, plot };
 window.flockPlay = stats;
 
 let socket = null;
@@ -21,6 +21,7 @@ let drawn = null;        // the frame on screen (redrawn when the 3D view turns)
 let lastStep = -1;
 let model = null;        // the model the server runs (from its "state" replies)
 let refused = null;      // why the server refused this tab, if it did
+let busy = false;        // the server said that a change takes a while; its next frame ends that
 
 // -- the socket ----------------------------------------------------------------------------
 
@@ -58,6 +59,7 @@ function send(message) {
 }
 
 function onFrame(frame) {
+  if (busy) { busy = false; stats.busy = false; if (!document.body.classList.contains("offline")) $("message").textContent = ""; }
   if (frame.step < lastStep || (model && (frame.n !== stats.n || frame.dim !== stats.dim))) plot.clear();
   lastStep = frame.step;
   latest = frame;
@@ -77,6 +79,12 @@ function onReply(reply) {
     model = reply.model;
     stats.model = model;
     sync(reply);
+  } else if (reply.type === "busy") {   // a change that takes a while: said until the next frame
+    busy = true;
+    stats.busy = true;
+    clearTimeout(sayTimer);
+    $("message").textContent = reply.message;
+    $("message").classList.remove("error");
   } else if (reply.type === "config") {
     download(new Blob([reply.toml], { type: "application/toml" }), reply.filename);
     say(`Saved ${reply.filename}: run it with  flocking run --config ${reply.filename}`);

@@ -10,6 +10,7 @@ export class OrderPlot {
     this.steps = [];
     this.values = [];
     this.tickPx = 0;    // CSS pixels of the tick labels (tests read it)
+    this.x0 = 0;        // CSS pixels from the left edge to the phi axis (tests read it)
   }
 
   clear() { this.steps = []; this.values = []; this.draw(); }
@@ -36,27 +37,29 @@ export class OrderPlot {
     if (!dpr) return;
     const w = canvas.width, h = canvas.height;
     const font = this.tickPx * dpr;
-    const left = 3.3 * font, right = 0.8 * font, top = 0.7 * font, bottom = 2.5 * font;
+    ctx.font = `${font}px system-ui, sans-serif`;
+    // the phi axis' label, upright (one letter), then the ticks' labels, 0.6 font sizes apart
+    const ticks = ["0", "0.5", "1"];
+    const labelWidth = ctx.measureText("φ").width, tickWidth = Math.max(...ticks.map((t) => ctx.measureText(t).width));
+    const pad = 0.35 * font, gap = 0.6 * font;
+    const left = 0.3 * font + labelWidth + gap + tickWidth + pad, right = 0.8 * font, top = 0.7 * font,
+      bottom = 2.5 * font;
     const x0 = left, x1 = w - right, y0 = h - bottom, y1 = top;
     const y = (v) => y0 + v * (y1 - y0);
     ctx.clearRect(0, 0, w, h);
-    ctx.font = `${font}px system-ui, sans-serif`;
     ctx.lineWidth = Math.max(1, dpr);
-    // phi axis: 0, 0.5, 1
     ctx.textAlign = "right";
     ctx.textBaseline = "middle";
-    for (const v of [0, 0.5, 1]) {
+    ticks.forEach((text, i) => {
+      const v = i / 2;
       ctx.strokeStyle = v === 0 ? MUTED : GRID;
       ctx.beginPath(); ctx.moveTo(x0, y(v)); ctx.lineTo(x1, y(v)); ctx.stroke();
       ctx.fillStyle = INK;
-      ctx.fillText(v === 0.5 ? "0.5" : String(v), x0 - 0.35 * font, y(v));
-    }
-    ctx.save();
-    ctx.translate(0.55 * font, (y0 + y1) / 2);
-    ctx.rotate(-Math.PI / 2);
-    ctx.textAlign = "center";
-    ctx.fillText("φ", 0, 0);
-    ctx.restore();
+      ctx.fillText(text, x0 - pad, y(v));
+    });
+    ctx.textAlign = "left";
+    ctx.fillText("φ", 0.3 * font, y(0.75));  // between two ticks, not beside one
+    this.x0 = x0 / dpr;
     // step axis: nice round steps over what the plot holds
     const first = this.steps.length ? this.steps[0] : 0;
     const last = Math.max(first + 10, this.steps.length ? this.steps[this.steps.length - 1] : 10);
