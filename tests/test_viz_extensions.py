@@ -225,7 +225,7 @@ def test_a_run_with_extensions_draws_them_from_the_command_line(tmp_path):
     assert near(pixel(scene, snapshot, -6.0, 0.0), THEMES["dark"].text, 20)  # the wall (2 pixels wide at 60 dpi)
     for colour in ("heading", "species"):
         movie = tmp_path / f"{colour}.mp4"
-        r = runner.invoke(main, ["animate", str(out), "-o", str(movie), "--color", colour, "--size", "2", "-q"])
+        r = runner.invoke(main, ["animate", str(out), "-o", str(movie), "--color", colour, "--size", "column", "-q"])
         assert r.exit_code == 0 and movie.stat().st_size > 0, r.output
     r = runner.invoke(main, ["animate", str(out), "-o", str(tmp_path / "x.png"), "--color", "stripes"])
     assert r.exit_code == 2 and r.output.strip().splitlines() == [

@@ -13,10 +13,10 @@ from .run import model_options
 
 #: what a new tab shows unless options say otherwise: a flock that orders within seconds
 PLAY_DEFAULTS = {"n": 4000, "density": DEFAULT_DENSITY, "noise": 1.0}
-EXTRA = "flocking play needs its web extra: pip install 'flocking[play]'"
+EXTRA = "flocking play needs its extra 'play': pip install '.[play]' in flocking's source folder"
 
 
-@click.command()
+@click.command(short_help="A live flock in the browser, with sliders.")
 @model_options(defaults=PLAY_DEFAULTS)
 @click.option("--host", default="127.0.0.1", show_default=True,
               help="Address to listen on; anything but 127.0.0.1 lets other machines connect.")
