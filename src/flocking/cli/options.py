@@ -147,11 +147,14 @@ def check_folder(option: str, path: str) -> None:
 
 
 def check_file(option: str, path: str) -> None:
-    """Refuse an output file whose folder cannot be made or written (see :func:`check_folder`),
-    or that is a folder."""
+    """Refuse an output file that is a folder, or whose folder does not exist or cannot be
+    written (see :func:`check_folder`)."""
     if os.path.isdir(path):
         raise ParameterError(f"{option}: {path!r} is a folder; give a file name")
-    check_folder(option, os.path.dirname(os.path.abspath(path)))
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise ParameterError(f"{option}: no folder {os.path.dirname(path)!r} to write {os.path.basename(path)!r} in")
+    check_folder(option, folder)
 
 
 def one_line(err: click.UsageError) -> str:

@@ -135,13 +135,13 @@ def plot_sweep(results, view, x, theme, size, dpi, out, quiet):
       flocking plot-sweep vicsek --view fss --out fss.png
     """
     from ..sweep import require
-    from ..viz import style
 
     if out is None:
         base = results.rstrip("/")
         base = os.path.join(base, "results") if os.path.isdir(base) and not base.endswith(".zarr") else base
         out = os.path.splitext(base)[0] + ("-fss" if view == "fss" else "") + ".png"
-    style.check_format(out)
+    if os.path.splitext(out)[1].lower().lstrip(".") not in opt.FORMATS:
+        raise ParameterError(f"out: must end in .png, .svg or .pdf (got {out!r})")
     opt.check_file("out", out)
     require("xarray")
     from ..sweep.figures import plot
