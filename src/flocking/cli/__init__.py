@@ -97,7 +97,7 @@ def option_name(message: str, options: set[str] = frozenset()) -> str:
     return message
 
 
-@click.group(cls=Main, context_settings={"help_option_names": ["-h", "--help"]},
+@click.group("flocking", cls=Main, context_settings={"help_option_names": ["-h", "--help"]},
              epilog="Documentation: README.md and docs/ in the source tree (docs/model.md: the model and its "
                     "parameters). Every option of a command: flocking COMMAND --help.")
 @click.version_option(package_name="flocking")

@@ -120,7 +120,7 @@ def plots(help: str, default: str = "--plots"):
 
 def quiet(help: str = "No progress bar, no summary."):
     """``--quiet``/``-q``."""
-    return click.option("--quiet", "-q", is_flag=True, help=help)
+    return click.option("--quiet", "-q", is_flag=True, default=False, help=help)
 
 
 def check_folder(option: str, path: str) -> None:
