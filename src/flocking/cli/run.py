@@ -431,9 +431,9 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
 
 
 #: How long numba takes to compile the kernels of a new kind of run (2D or 3D, metric or
-#: topological, angular or vectorial noise, delay or not): 30 to 50 s of CPU time measured
-#: with ``flocking run`` on the project's 2-core machine, minutes when it was busy.
-COMPILE_TIME = "typically 30 to 50 s, longer on a busy machine"
+#: topological, angular or vectorial noise, delay or not): 12 to 50 s on the project's 2-core
+#: machine, 1.5 to 3 minutes while other jobs shared it (docs/performance.md, "Compiling").
+COMPILE_TIME = "under a minute on 2 cores, a few minutes on a busy machine"
 
 
 def tiny_model(model: Model) -> Model:
