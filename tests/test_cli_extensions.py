@@ -48,6 +48,15 @@ def test_a_sphere_in_3d(tmp_path):
     assert [(o.centre, o.radius) for o in model.obstacles] == [((4.0, 4.0, 4.0), 1.5)]
 
 
+def test_the_dimension_of_a_config_file_sets_what_an_obstacle_takes(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("dim = 3\nn = 100\nbox = 8.0\nsteps = 1\n")
+    run("--config", cfg, "--obstacle", "4,4,4,1.5", "--out", tmp_path / "o", "-q", "--no-plots")
+    assert flocking.open(tmp_path / "o" / "trajectory.gsd").model.obstacles[0].centre == (4.0, 4.0, 4.0)
+    result = run("--config", cfg, "--obstacle", "4,4,1.5", "--out", tmp_path / "p", check=False)
+    assert result.exit_code == 2 and "--obstacle: must be X,Y,Z,R in 3D" in result.output
+
+
 def test_two_species_and_their_coupling(tmp_path):
     out = tmp_path / "o"
     run("--n", 200, "--box", 10, "--steps", 5, "--species-b", 0.25, "--cross-coupling", -1, "--out", out, "-q",

@@ -244,7 +244,8 @@ def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, d
         outputs = resume(resume_dir, config_file, out, quiet, {**options, **given}, asked, show=show)
         return pictures(resume_dir, quiet, **outputs, **looks)
     file_layer = RunConfig.load(config_file) if config_file else {}
-    layer = extension_layer(obstacles, species_b, cross_coupling, {**file_layer, **options})
+    given_options = {k: v for k, v in options.items() if v is not None}
+    layer = extension_layer(obstacles, species_b, cross_coupling, {**file_layer, **given_options})
     if "species" in layer:  # the file's coupling was for the file's species
         file_layer.pop("coupling", None)
     try:
