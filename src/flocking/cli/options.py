@@ -29,6 +29,7 @@ line, ``Error: ...``, and exit code 2: see :func:`one_line`.
 from __future__ import annotations
 
 import difflib
+import errno
 import os
 
 import click
@@ -124,8 +125,10 @@ def quiet(help: str = "No progress bar, no summary."):
 
 
 def check_folder(option: str, path: str) -> None:
-    """Refuse, before anything is written, an output folder that cannot be made or written:
-    one that is a file, or whose nearest existing parent is not a folder we may write in.
+    """Refuse, before anything is written, an output folder that cannot be made: one that is
+    a file, or inside one (:class:`ParameterError`); one whose nearest existing parent is
+    read-only or not ours to write in (the :class:`OSError` that making it would raise,
+    which the command reports like a full disk).
 
     >>> import tempfile
     >>> notes = tempfile.NamedTemporaryFile(suffix=".txt")
@@ -142,8 +145,8 @@ def check_folder(option: str, path: str) -> None:
     if not os.path.isdir(parent):
         raise ParameterError(f"{option}: cannot make {path!r}: {parent!r} is a file")
     if not os.access(parent, os.W_OK | os.X_OK):
-        where = "in" if parent != os.path.abspath(path) else "to"
-        raise ParameterError(f"{option}: cannot make {path!r}: no permission to write {where} {parent!r}")
+        code = errno.EROFS if os.statvfs(parent).f_flag & os.ST_RDONLY else errno.EACCES
+        raise OSError(code, os.strerror(code), parent)
 
 
 def check_file(option: str, path: str) -> None:
