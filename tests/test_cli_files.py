@@ -51,7 +51,8 @@ def test_every_output_is_made_as_the_umask_says(tmp_path, monkeypatch, umask, ma
     (0644 under 022, 0664 under 002), and every folder 0777 & ~umask."""
     monkeypatch.chdir(tmp_path)
     umask(mask)
-    assert invoke("run", "--n", 50, "--box", 5, "--steps", 4, "--every", 2, "--movie", "--out", "r", "-q").exit_code == 0
+    result = invoke("run", "--n", 50, "--box", 5, "--steps", 4, "--every", 2, "--movie", "--out", "r", "-q")
+    assert result.exit_code == 0, result.output
     assert invoke("run", "--resume", "r", "--steps", 6, "-q").exit_code == 0  # gsd appends to the file it made
     assert invoke("analyze", "r", "--only", "polar,clusters", "--out", "a", "-q").exit_code == 0
     assert invoke("animate", "r", "-o", "frame.svg", "-q").exit_code == 0

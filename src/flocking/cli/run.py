@@ -116,7 +116,8 @@ def written_by_flocking(name: str) -> bool:
     """
     from .analyze import OUTPUTS
 
-    names = set(RUN_FILES) | {stem + ext for stem, *_ in OUTPUTS.values() for ext in (".csv", *(f".{e}" for e in opt.FORMATS))}
+    extensions = (".csv", *(f".{e}" for e in opt.FORMATS))
+    names = set(RUN_FILES) | {stem + ext for stem, *_ in OUTPUTS.values() for ext in extensions}
     for name_ in names:
         ext = os.path.splitext(name_)[1]
         if re.fullmatch(re.escape(name_) + r"(\.\d+)?\.tmp", name) or name == f".{name_}.part{ext}":
