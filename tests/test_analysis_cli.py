@@ -203,7 +203,7 @@ def test_errors_are_one_line_and_write_nothing(run_dir, tmp_path, args, message)
 
 def test_only_and_out(run_dir, tmp_path):
     out = tmp_path / "res"
-    res = run("analyze", run_dir / "trajectory.gsd", "--only", "clusters,boxcount", "--frames", 2, "--radius", 0.5,
+    res = run("analyze", run_dir / "trajectory.gsd", "--only", "clusters,boxcount", "--frames", 2, "--cluster-radius", 0.5,
               "--out", out, "--no-plots", "-q")
     assert res.exit_code == 0, res.output
     data = json.loads((out / "analysis.json").read_text())

@@ -119,3 +119,35 @@ def test_hoomd_convention_files_open_in_ours(tmp_path, dim, with_velocity):
     state = flocking.State.from_gsd(path, model)
     assert state.step == 1000 and np.all(state.positions >= 0) and np.all(state.positions < box[:dim])
     assert frame.polar_order == pytest.approx(np.linalg.norm(heading[:, :dim].sum(axis=0)) / 40, abs=1e-5)
+
+
+def test_ovito_opens_a_run_with_its_species_velocities_and_box(tmp_path):
+    """OVITO's Python module (``pip install ovito``; skipped where it cannot be imported)
+    reads what `flocking run` writes: every frame's positions (centred, as HOOMD has them),
+    velocities (speed x heading), the species as particle types, the box and its dimension."""
+    ovito_io = pytest.importorskip("ovito.io")
+    from click.testing import CliRunner
+
+    from flocking.cli import main
+
+    out = tmp_path / "run"
+    result = CliRunner().invoke(main, ["run", "--n", "120", "--box", "8,6", "--steps", "10", "--every", "5",
+                                       "--species-b", "0.25", "--out", str(out), "-q", "--no-plots"])
+    assert result.exit_code == 0, result.output
+    pipeline = ovito_io.import_file(str(out / "trajectory.gsd"))
+    with gsd.hoomd.open(out / "trajectory.gsd") as f:
+        assert pipeline.source.num_frames == len(f) == 3
+        for i, frame in enumerate(f):
+            data = pipeline.compute(i)
+            assert data.attributes["Timestep"] == frame.configuration.step
+            assert np.array_equal(np.asarray(data.particles.positions), frame.particles.position)
+            assert np.array_equal(np.asarray(data.particles.velocities), frame.particles.velocity)
+    types = data.particles.particle_types
+    assert [t.name for t in types.types] == ["A", "B"]
+    assert np.bincount(np.asarray(types)).tolist() == [90, 30]  # species B: ids 90 to 119
+    assert np.asarray(types)[90:].min() == 1
+    cell = np.asarray(data.cell[...])
+    assert np.allclose(cell[:2, :2], np.diag([8.0, 6.0])) and np.allclose(cell[:2, 3], [-4.0, -3.0])
+    assert data.cell.is2D
+    speeds = np.linalg.norm(np.asarray(data.particles.velocities), axis=1)
+    assert np.allclose(speeds, 0.5, rtol=1e-6)

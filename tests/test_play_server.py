@@ -765,7 +765,7 @@ def test_missing_extra_is_one_line(monkeypatch):
     monkeypatch.setitem(sys.modules, "uvicorn", None)
     result = CliRunner().invoke(main, ["play", "--no-browser"])
     assert result.exit_code == 1
-    assert result.output.strip() == "Error: flocking play needs its web extra: pip install 'flocking[play]'"
+    assert result.output.strip() == "Error: flocking play needs its extra 'play': pip install '.[play]' in flocking's source folder"
 
 
 def test_bad_options_and_busy_port():

@@ -201,10 +201,10 @@ def test_a_2d_trajectory_refuses_to_rotate(run_dir, tmp_path):
 def test_animate_command_movies_pictures_and_their_errors(run_dir, tmp_path):
     runner = CliRunner()
     out = tmp_path / "a.mp4"
-    ok = runner.invoke(main, ["animate", str(run_dir), "--output", str(out), "--size", "2", "--dpi", "64",
-                              "--theme", "light", "--no-time-label", "--stop", "3", "-q"])
+    ok = runner.invoke(main, ["animate", str(run_dir), "--out", str(out), "--size", "page", "--dpi", "32",
+                              "--theme", "light", "--no-time-label", "--last-frame", "2", "-q"])
     assert ok.exit_code == 0, ok.output
-    assert decode_mp4(out)[0]["size"][0] == 128
+    assert decode_mp4(out)[0]["size"][0] == 224  # a page, 7 in wide, at 32 pixels per inch
     pic = runner.invoke(main, ["animate", str(run_dir), "-o", str(tmp_path / "p.svg"), "--frame", "2",
                                "--size", "column", "--theme", "light", "-q"])
     assert pic.exit_code == 0, pic.output
@@ -212,9 +212,10 @@ def test_animate_command_movies_pictures_and_their_errors(run_dir, tmp_path):
     assert svg.startswith("<?xml") and "<image" in svg or "<path" in svg
     for args, word in [(["animate", str(tmp_path / "nope")], "no such run folder"),
                        (["animate", str(run_dir), "--theme", "purple"], "--theme: must be one of dark, light"),
-                       (["animate", str(run_dir), "--output", str(tmp_path / "m.avi")], "--output"),
+                       (["animate", str(run_dir), "--out", str(tmp_path / "m.mov")],
+                        "--out: must end in .mp4 or .gif (a movie), or .png, .svg or .pdf (one frame)"),
                        (["animate", str(run_dir), "--stride", "0"], "--stride"),
-                       (["animate", str(run_dir), "--start", "50"], "select none"),
+                       (["animate", str(run_dir), "--first-frame", "50"], "--first-frame: must be a frame index"),
                        (["animate", str(run_dir), "--rotate"], "--rotate: turns the camera around a 3D box"),
                        (["animate", str(run_dir), "--frame", "2"], "--frame: only a picture"),
                        (["animate", str(run_dir), "-o", str(tmp_path / "x.png"), "--fps", "5"],
@@ -243,7 +244,7 @@ def test_run_leaves_pictures_in_the_theme_resolution_and_format_asked(tmp_path, 
     runner = CliRunner()
     out = tmp_path / "light"
     r = runner.invoke(main, ["run", "--n", "20", "--density", "1", "--steps", "4", "--backend", "reference",
-                             "--out", str(out), "--theme", "light", "--dpi", "50", "--plot-format", "pdf", "-q"])
+                             "--out", str(out), "--theme", "light", "--dpi", "50", "--format", "pdf", "-q"])
     assert r.exit_code == 0, r.output
     assert {"snapshot.pdf", "polar_order.pdf"} <= set(os.listdir(out)) and not list(out.glob("*.png"))
     assert (out / "snapshot.pdf").read_bytes()[:4] == b"%PDF"
@@ -254,7 +255,7 @@ def test_run_leaves_pictures_in_the_theme_resolution_and_format_asked(tmp_path, 
                                                             "trajectory.gsd"]
     for args, message in [(["--theme", "neon"], "--theme: must be one of dark, light (got 'neon')"),
                           (["--dpi", "5"], "--dpi: must be in [10, 1000] (got 5.0)"),
-                          (["--plot-format", "jpg"], "--plot-format: must be one of png, svg, pdf (got 'jpg')")]:
+                          (["--format", "jpg"], "--format: must be one of png, svg, pdf (got 'jpg')")]:
         out = tmp_path / "refused"
         r = runner.invoke(main, ["run", "--n", "20", "--steps", "4", "--backend", "reference", "--out", str(out),
                                  "-q", *args])

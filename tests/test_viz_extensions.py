@@ -229,7 +229,7 @@ def test_a_run_with_extensions_draws_them_from_the_command_line(tmp_path):
     assert near(snapshot[int(round(snapshot.shape[0] - py)), int(round(px))], THEMES["dark"].text, 20)
     for colour in ("heading", "species", "deviation"):
         movie = tmp_path / f"{colour}.mp4"
-        r = runner.invoke(main, ["animate", str(out), "-o", str(movie), "--color", colour, "--size", "2", "-q"])
+        r = runner.invoke(main, ["animate", str(out), "-o", str(movie), "--color", colour, "--size", "column", "-q"])
         assert r.exit_code == 0 and movie.stat().st_size > 0, r.output
     r = runner.invoke(main, ["animate", str(out), "-o", str(tmp_path / "x.png"), "--color", "stripes"])
     assert r.exit_code == 2 and r.output.strip().splitlines() == [

@@ -117,6 +117,12 @@ class GSDWriter(Writer):
             import gsd.fl
             import gsd.version
 
+            if self.mode == "w" or not os.path.exists(self.path):
+                # gsd creates a file with mode 0640 whatever the umask, and keeps the mode of one that
+                # exists: made here, it gets the mode of every other output (0644 under umask 022)
+                with open(self.path, "wb"):
+                    pass
+                self.mode = "w"
             self._file = gsd.fl.open(self.path, mode=self.mode, application="gsd.hoomd " + gsd.version.version,
                                      schema="hoomd", schema_version=[2, 0])
             if self._file.schema != "hoomd":

@@ -17,6 +17,7 @@ import click
 
 from ..files import replace_atomically
 from ..model import ParameterError
+from . import options as opt
 
 QUANTITIES = ("polar", "species", "nematic", "fluctuations", "correlation", "profile", "clusters", "boxcount", "msd")
 #: quantities measured by default only when the run records them (several species; nematic alignment)
@@ -98,7 +99,11 @@ def build(name: str, model, start, frames, options: dict):
     return fa.MeanSquareDisplacement(max_lag=options["max_lag"], start=start, frames=frames)
 
 
-@click.command()
+#: options of the command whose values reach an analysis under another name
+RENAMED = {"radius": "cluster_radius"}
+
+
+@click.command(short_help="Measure a run: order, fluctuations, correlation, bands, clusters.")
 @click.argument("run_dir", type=click.Path())
 @click.option("--only", default=None,
               help=f"Comma-separated subset of: {', '.join(QUANTITIES)}. [default: all; species and nematic when "
@@ -107,23 +112,24 @@ def build(name: str, model, start, frames, options: dict):
               help="First step of the window, a fraction in (0, 1) of the run to discard, or auto: the end of "
                    "the transient detected in the polar order (half the run when none is found).")
 @click.option("--frames", type=click.INT, default=None,
-              help="Use at most the last N frames of the window (the polar order uses every step).")
-@click.option("--max-lag", type=click.INT, default=None, help="Largest MSD lag, in steps. [default: all]")
-@click.option("--radius", type=click.FLOAT, default=None, help="Cluster link radius. [default: the run's radius]")
-@click.option("--r-max", type=click.FLOAT, default=None, help="Largest distance of C(r). [default: L/2]")
-@click.option("--dr", type=click.FLOAT, default=None, help="Bin width of C(r). [default: min(0.5, r_max/20)]")
-@click.option("--method", default="auto",
-              help="C(r): exact cell list, FFT grid, or auto. [default: auto]")
-@click.option("--out", default=None, help="Output folder. [default: RUN_DIR]")
-@click.option("--theme", default="dark", show_default=True, help="Figures: dark or light.")
-@click.option("--size", "size", default="column", show_default=True,
-              help="Figures: column (3.4 x 2.6 in), page (7 x 3.2 in) or slide (8 x 4.5 in).")
-@click.option("--format", "fmt", default="png", show_default=True, help="Figures: png, svg or pdf.")
-@click.option("--dpi", type=click.FLOAT, default=None, help="Figures: pixels per inch of PNGs. [default: 200]")
-@click.option("--no-plots", is_flag=True, help="Write JSON and CSV only.")
-@click.option("--quiet", "-q", is_flag=True, help="No summary on stderr.")
-def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, out, theme, size, fmt, dpi,
-            no_plots, quiet):
+              help="Use at most the last N frames of the window (the polar order uses every step).  [default: all]")
+@click.option("--max-lag", type=click.INT, default=None,
+              help="Largest lag of the mean square displacement, in steps.  [default: all]")
+@click.option("--cluster-radius", type=click.FLOAT, default=None,
+              help="Two particles closer than this are in one cluster.  [default: the run's radius]")
+@click.option("--r-max", type=click.FLOAT, default=None, help="Largest distance of C(r).  [default: L/2]")
+@click.option("--dr", type=click.FLOAT, default=None, help="Bin width of C(r).  [default: min(0.5, r_max/20)]")
+@click.option("--method", type=opt.OneOf(("auto", "cells", "grid")), default="auto", show_default=True,
+              help="C(r): cells (exact, over pairs), grid (FFT), or auto.")
+@opt.out("Output folder.", "RUN_DIR")
+@opt.theme
+@opt.size
+@opt.picture_format
+@opt.dpi()
+@opt.plots("A figure per quantity (without: JSON and CSV only).")
+@opt.quiet("No summary on stderr.")
+def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, method, out, theme, size, fmt, dpi,
+            plots, quiet):
     """Measure a run: polar order, number fluctuations, velocity correlation, density
     profile, clusters, box-counting dimension and MSD; the polar order of each species
     and the nematic order when the run has several species or nematic alignment.
@@ -140,7 +146,6 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     """
     from ..analysis import snapshots
     from ..viz import style
-    from ..viz.colors import get_theme
 
     names = parse_only(only)
     asked = only is not None
@@ -148,13 +153,6 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     for option, value in (("frames", frames), ("max_lag", max_lag)):
         if value is not None and value < 1:
             raise ParameterError(f"{option}: must be a whole number >= 1 (got {value})")
-    get_theme(theme)
-    if size not in style.SIZES:
-        raise ParameterError(f"size: must be one of {', '.join(style.SIZES)} (got {size!r})")
-    if fmt not in style.FORMATS:
-        raise ParameterError(f"format: must be one of {', '.join(style.FORMATS)} (got {fmt!r})")
-    if dpi is not None and not (math.isfinite(dpi) and 10 <= dpi <= 2000):
-        raise ParameterError(f"dpi: must be in [10, 2000] (got {dpi})")
     if not os.path.exists(run_dir):
         raise ParameterError(f"RUN_DIR {run_dir!r}: no such folder or file")
     folder = run_dir if os.path.isdir(run_dir) else os.path.dirname(os.path.abspath(run_dir))
@@ -168,11 +166,14 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     if gsd_path is None and not (obs and set(names) <= set(SERIES)):
         raise ParameterError(f"RUN_DIR {run_dir!r}: holds no trajectory.gsd")
     out = out or folder
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise ParameterError(f"out: {out!r} exists and is not a folder")
-    options = {"radius": radius, "r_max": r_max, "dr": dr, "method": method, "max_lag": max_lag}
+    opt.check_folder("out", out)
+    options = {"radius": cluster_radius, "r_max": r_max, "dr": dr, "method": method, "max_lag": max_lag}
     for name in names:  # every option checked before anything is read or written
-        build(name, model, None, frames, options)
+        try:
+            build(name, model, None, frames, options)
+        except ParameterError as err:
+            key, _, rest = str(err).partition(": ")
+            raise ParameterError(f"{RENAMED.get(key, key)}: {rest}") from None
     try:
         system = snapshots.as_frames(gsd_path) if gsd_path else None
     except ParameterError as err:
@@ -216,7 +217,7 @@ def analyze(run_dir, only, start, frames, max_lag, radius, r_max, dr, method, ou
     for name, obj in results.items():
         stem, heading, columns = OUTPUTS[name]
         write_csv(os.path.join(out, stem + ".csv"), obj, columns_of(name, obj, columns))
-        if not no_plots:
+        if plots is not False:
             fig, ax = style.figure(size, theme=theme)
             obj.plot(ax)
             style.title(fig, heading, details)
@@ -413,13 +414,13 @@ def summary_lines(results) -> list[str]:
             lines.append(f"polar order: <phi> {format_value(obj.mean, obj.mean_error, ' ± ')}, "
                          f"chi {format_value(obj.susceptibility, obj.susceptibility_error, ' ± ')}, "
                          f"G {format_value(obj.binder, obj.binder_error, ' ± ')} "
-                         f"(tau {obj.tau_time:.3g} time units, {obj.samples} values)")
+                         f"(autocorrelation time {obj.tau_time:.3g} time units, {obj.samples} values)")
         elif name == "species":
             lines.append("polar order per species: " + ", ".join(
                 f"{s} {format_value(obj[s].mean, obj[s].mean_error, ' ± ')}" for s in obj.names))
         elif name == "nematic":
             lines.append(f"nematic order: <S> {format_value(obj.mean, obj.mean_error, ' ± ')} "
-                         f"(tau {obj.tau_time:.3g} time units, {obj.samples} values)")
+                         f"(autocorrelation time {obj.tau_time:.3g} time units, {obj.samples} values)")
         elif name == "fluctuations":
             alpha = format_value(obj.alpha, obj.alpha_error, ' ± ') if math.isfinite(obj.alpha) else "n/a (see notes)"
             lines.append(f"number fluctuations: alpha {alpha}")

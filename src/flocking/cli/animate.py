@@ -6,83 +6,119 @@ import os
 
 import click
 
+from ..model import ParameterError
+from . import options as opt
+
+#: what ``--out`` may end in: a movie, or one frame as a picture
+MOVIES = ("mp4", "gif")
 #: options that only a movie takes, and only a picture takes (with their defaults)
-MOVIE_ONLY = {"start": None, "stop": None, "stride": None, "fps": None, "rotate": False}
+MOVIE_ONLY = {"first_frame": None, "last_frame": None, "stride": None, "fps": None, "rotate": False}
 PICTURE_ONLY = {"frame": None}
 
 
-def size_value(text: str | None):
-    """``--size``: a name (column, page, slide) or a width in inches."""
-    if text is None:
-        return 6.0
+def frame_count(run_dir: str) -> int:
+    """How many frames the trajectory of ``run_dir`` (a run folder or a GSD file) holds."""
+    from ..trajectory import open as open_trajectory
+    from .compare import trajectory_of
+
+    path = trajectory_of(run_dir)
     try:
-        return float(text)
-    except ValueError:
-        return text
+        with open_trajectory(path) as traj:
+            return len(traj)
+    except (OSError, RuntimeError, ValueError, KeyError) as err:  # gsd's ways of refusing a file
+        raise ParameterError(f"RUN_DIR: cannot read the trajectory {path!r} ({err})") from None
 
 
-@click.command()
+def frame_index(option: str, index: int, count: int) -> int:
+    """``index`` (negative: from the end) as an index in ``range(count)``, or refused.
+
+    >>> frame_index("frame", -1, 10), frame_index("first_frame", 3, 10)
+    (9, 3)
+    >>> frame_index("frame", 10, 10)
+    Traceback (most recent call last):
+    ...
+    flocking.checks.ParameterError: frame: must be a frame index from -10 to 9 (the run has 10 frames; got 10)
+    """
+    if not -count <= index < count:
+        raise ParameterError(f"{option}: must be a frame index from {-count} to {count - 1} (the run has {count} "
+                             f"frames; got {index})")
+    return index % count
+
+
+@click.command(short_help="A movie of a run, or one frame as a picture.")
 @click.argument("run_dir", type=click.Path())
-@click.option("--output", "-o", default=None,
-              help="movie.mp4 (H.264), a .gif, or one frame as .png, .svg or .pdf. [default: RUN_DIR/movie.mp4]")
-@click.option("--theme", default="dark", show_default=True, help="dark or light.")
-@click.option("--style", default="auto", show_default=True,
-              help="auto, arrows or density (2D), perspective (3D).")
-@click.option("--color", default="auto", show_default=True,
-              help="Colour particles by heading or species (auto: species when the run has several).")
-@click.option("--fps", type=click.FLOAT, default=None, help="Movie: frames per second. [default: 20]")
-@click.option("--dpi", type=click.FLOAT, default=None,
-              help="Pixels per inch. [default: 120 for a movie, 200 for a picture]")
-@click.option("--size", default=None, help="column, page, slide, or a width in inches. [default: 6]")
-@click.option("--start", type=click.INT, default=None, help="Movie: first frame (index; negative from the end).")
-@click.option("--stop", type=click.INT, default=None, help="Movie: stop before this frame index.")
-@click.option("--stride", type=click.INT, default=None, help="Movie: every K-th frame. [default: 1]")
-@click.option("--frame", type=click.INT, default=None, help="Picture: the frame index to draw. [default: -1, the last]")
+@opt.out("A movie (.mp4, H.264, or .gif), or one frame as a picture (.png, .svg or .pdf): the extension "
+         "decides.", "RUN_DIR/movie.mp4")
+@opt.theme
+@click.option("--style", type=opt.OneOf(("auto", "arrows", "density", "perspective")), default="auto",
+              show_default=True, help="arrows or density (2D), perspective (3D); auto: arrows up to about 3e4 "
+                                      "particles, then density.")
+@opt.color
+@opt.size
+@opt.dpi("Pixels per inch.", "200 for a picture, 120 for a movie")
+@click.option("--fps", type=click.FLOAT, default=None, help="Movie: frames per second.  [default: 20]")
+@click.option("--first-frame", type=click.INT, default=None,
+              help="Movie: the first frame (an index; negative from the end).  [default: 0, the first]")
+@click.option("--last-frame", type=click.INT, default=None,
+              help="Movie: the last frame (an index; negative from the end).  [default: -1, the last]")
+@click.option("--stride", type=click.INT, default=None, help="Movie: every K-th frame.  [default: 1]")
+@click.option("--frame", type=click.INT, default=None,
+              help="Picture: the frame to draw (an index; negative from the end).  [default: -1, the last]")
 @click.option("--arrow-scale", type=click.FLOAT, default=1.0, show_default=True,
               help="Arrow (3D: cone) length relative to the mean spacing.")
 @click.option("--time-label/--no-time-label", default=True, show_default=True,
               help="Step and polar order in the corner.")
 @click.option("--rotate", is_flag=True, help="Movie of a 3D run: turn the camera once around the box.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def animate(run_dir, output, quiet, size, **options):
+@opt.quiet("No progress bar.")
+def animate(run_dir, out, quiet, first_frame, last_frame, **options):
     """Write a movie of RUN_DIR (a run folder or a .gsd file), streaming its frames, or
-    draw one of its frames as a picture when --output ends in .png, .svg or .pdf.
+    draw one of its frames as a picture when --out ends in .png, .svg or .pdf.
 
     \b
     Examples:
       flocking animate runs/run-0001
-      flocking animate runs/run-0001 --output flock.gif --stride 4 --size 4
+      flocking animate runs/run-0001 --out flock.gif --stride 4 --size column
       flocking animate big --style density --theme light --fps 30
-      flocking animate run3d --rotate --output turn.mp4
+      flocking animate run3d --rotate --out turn.mp4
       flocking animate runs/run-0001 -o last.pdf --theme light --size column
-      flocking animate mixed --color heading
+      flocking animate runs/run-0001 -o early.png --frame 10
+      flocking animate mixed --color heading --first-frame 10 --last-frame -11
     """
-    from ..model import ParameterError
-    from ..viz import style
     from ..viz.movie import write_movie, write_picture
 
     if not os.path.exists(run_dir):
-        raise ParameterError(f"no such run folder or trajectory: {run_dir!r}")
-    if output is None:
+        raise ParameterError(f"RUN_DIR: no such run folder or trajectory: {run_dir!r}")
+    if out is None:
         folder = run_dir if os.path.isdir(run_dir) else os.path.dirname(run_dir) or "."
-        output = os.path.join(folder, "movie.mp4")
-    ext = os.path.splitext(output)[1].lower().lstrip(".")
-    picture = ext in style.FORMATS
+        out = os.path.join(folder, "movie.mp4")
+    ext = os.path.splitext(out)[1].lower().lstrip(".")
+    if ext not in MOVIES + opt.FORMATS:
+        raise ParameterError(f"out: must end in .mp4 or .gif (a movie), or .png, .svg or .pdf (one frame) "
+                             f"(got {out!r})")
+    picture = ext in opt.FORMATS
+    options.update(first_frame=first_frame, last_frame=last_frame)
     wrong = PICTURE_ONLY if not picture else MOVIE_ONLY
     given = [name for name, default in wrong.items() if options[name] != default]
     if given:
         kind = "a picture (.png, .svg or .pdf)" if not picture else "a movie (.mp4 or .gif)"
-        raise ParameterError(f"{given[0]}: only {kind} takes --{given[0]} (got --output {output!r})")
+        raise ParameterError(f"{given[0]}: only {kind} takes --{given[0].replace('_', '-')} (got --out {out!r})")
     for name in wrong:
         options.pop(name)
-    options["size"] = size_value(size)
+    opt.check_file("out", out)
+    count = frame_count(run_dir)
     if picture:
-        options["frame"] = -1 if options["frame"] is None else options["frame"]
-        path = write_picture(run_dir, output, **options)
+        options["frame"] = frame_index("frame", -1 if options["frame"] is None else options["frame"], count)
+        path = write_picture(run_dir, out, **options)
     else:
+        first = frame_index("first_frame", options.pop("first_frame") or 0, count)
+        last = frame_index("last_frame", -1 if options["last_frame"] is None else options["last_frame"], count)
+        options.pop("last_frame")
+        if last < first:
+            raise ParameterError(f"last_frame: must not come before --first-frame (frames {first} and {last} of "
+                                 f"{count})")
         options["fps"] = 20.0 if options["fps"] is None else options["fps"]
         options["stride"] = 1 if options["stride"] is None else options["stride"]
         options["dpi"] = 120.0 if options["dpi"] is None else options["dpi"]
-        path = write_movie(run_dir, output, progress=not quiet, **options)
+        path = write_movie(run_dir, out, progress=not quiet, start=first, stop=last + 1, **options)
     if not quiet:
         click.echo(f"flocking: wrote {path}", err=True)

@@ -5,14 +5,14 @@ from __future__ import annotations
 import click
 
 from ..model import ParameterError
+from . import options as opt
 
 
-@click.command()
+@click.command(short_help="Particle-steps per second, beside reference codes.")
 @click.option("--full", is_flag=True, help="The whole table (N up to 1e7; tens of minutes). Default: quick, small N.")
 @click.option("--refs", type=click.Path(file_okay=False), default=None,
               help="Folder holding kdtree_reference.py. [default: benchmarks/ next to the package source]")
-@click.option("--out", type=click.Path(file_okay=False), default="bench-results", show_default=True,
-              help="Folder for results.json, results.md and throughput.png.")
+@opt.out("Folder for results.json, results.md and throughput.png.", "bench-results")
 @click.option("--repeats", type=int, default=3, show_default=True, help="Timed runs per case (the median is kept).")
 @click.option("--group", "groups", multiple=True,
               help="Only these groups (2d-metric, 3d-metric, topological, vectorial, delay, threads); repeatable.")
@@ -26,6 +26,8 @@ def bench(full, refs, out, repeats, groups, no_memory):
     """
     from .. import bench as suite
 
+    out = out or "bench-results"
+    opt.check_folder("out", out)
     if repeats < 1:
         raise ParameterError(f"repeats: must be at least 1 (got {repeats})")
     known = {c.group for c in suite.standard_cases(full)}

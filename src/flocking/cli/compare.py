@@ -154,7 +154,7 @@ def differences(run_a: str, run_b: str) -> list[str]:
     return found
 
 
-@click.command()
+@click.command(short_help="Whether two runs hold the same data, exactly.")
 @click.argument("run_a", type=click.Path())
 @click.argument("run_b", type=click.Path())
 def compare(run_a, run_b):

@@ -13,13 +13,14 @@ from .run import model_options
 
 #: what a new tab shows unless options say otherwise: a flock that orders within seconds
 PLAY_DEFAULTS = {"n": 4000, "density": DEFAULT_DENSITY, "noise": 1.0}
-EXTRA = "flocking play needs its web extra: pip install 'flocking[play]'"
+EXTRA = "flocking play needs its extra 'play': pip install '.[play]' in flocking's source folder"
 
 
-@click.command()
+@click.command(short_help="A live flock in the browser, with sliders.")
 @model_options(defaults=PLAY_DEFAULTS)
-@click.option("--host", default="127.0.0.1", show_default=True,
-              help="Address to listen on; anything but 127.0.0.1 lets other machines connect.")
+@click.option("--host", default=None, metavar="ADDRESS",
+              help="Address to listen on; anything but 127.0.0.1 lets other machines connect.  "
+                   "[default: 127.0.0.1]")
 @click.option("--port", type=click.IntRange(0, 65535), default=8765, show_default=True,
               help="Port to listen on; 0 picks a free one.")
 @click.option("--no-browser", is_flag=True, help="Print the address instead of opening a browser.")
@@ -44,6 +45,7 @@ def play(host, port, no_browser, max_memory, **options):
         from ..play.server import create_app
     except ImportError:
         raise click.ClickException(EXTRA) from None
+    host = host or "127.0.0.1"
     model = Model(**initial_parameters(options))
     app = create_app(model, memory=max_memory * MiB)  # refuses what a tab could not run
     sock = listen(host, port)

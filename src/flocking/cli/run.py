@@ -12,9 +12,11 @@ import time
 
 import click
 
+from ..checks import comma_numbers
 from ..config import RUN_DEFAULTS, RunConfig
 from ..files import write_text
 from ..model import CHOICES, DEFAULT_BOX, DEFAULT_DENSITY, Model, ParameterError
+from . import options as opt
 
 #: option name -> help; every model parameter, same words as docs/model.md (defaults: :func:`shown_default`)
 MODEL_OPTIONS = [
@@ -23,23 +25,24 @@ MODEL_OPTIONS = [
     ("--density", click.FLOAT, "Number density N / volume."),
     ("--box", str, "Box side, or one per axis such as 4,5."),
     ("--speed", click.FLOAT, "Speed v0 (> 0)."),
-    ("--speeds", click.Choice(CHOICES["speeds"]), "All v0, or each uniform in (0, v0]."),
-    ("--neighbours", click.Choice(CHOICES["neighbours"]), "Metric (radius) or topological (k nearest)."),
+    ("--speeds", opt.OneOf(CHOICES["speeds"]), "All v0, or each uniform in (0, v0]."),
+    ("--neighbours", opt.OneOf(CHOICES["neighbours"]), "Metric (radius) or topological (k nearest)."),
     ("--radius", click.FLOAT, "Interaction radius R, metric neighbours."),
     ("--k", click.INT, "Number of nearest neighbours, topological."),
     ("--noise", click.FLOAT, "Noise amplitude eta: [0, 2 pi] for angular noise."),
-    ("--noise-scale", click.Choice(CHOICES["noise_scale"]),
+    ("--noise-scale", opt.OneOf(CHOICES["noise_scale"]),
      "'unit': --noise is eta' in [0, 1] (eta = 2 pi eta' for angular noise)."),
-    ("--noise-type", click.Choice(CHOICES["noise_type"]), "Angular (Vicsek) or vectorial (Gregoire-Chate)."),
+    ("--noise-type", opt.OneOf(CHOICES["noise_type"]), "Angular (Vicsek) or vectorial (Gregoire-Chate)."),
     ("--alignment", click.FLOAT, "Fraction epsilon in [0, 1] of the turn toward the neighbours."),
     ("--delay", click.INT, "Neighbours are seen this many steps late (>= 0)."),
     ("--dt", click.FLOAT, "Time step (> 0)."),
-    ("--update", click.Choice(CHOICES["update"]), "Move along the new (backward) or old (forward) heading."),
+    ("--update", opt.OneOf(CHOICES["update"]), "Move along the new (backward) or old (forward) heading."),
     ("--seed", click.INT, "The one integer that fixes every random number."),
-    # the extensions (docs/model.md); obstacles, species and coupling come from --config
+    # the extensions (docs/model.md); obstacles and two species are options of flocking run, the rest of
+    # the lists and tables come from --config
     ("--boundary", str, "periodic or wall, for every axis or one per axis such as periodic,wall."),
     ("--vision", click.FLOAT, "Half-angle of the cone in front inside which neighbours are seen, in (0, pi]."),
-    ("--alignment-rule", click.Choice(CHOICES["alignment_rule"]),
+    ("--alignment-rule", opt.OneOf(CHOICES["alignment_rule"]),
      "polar, or nematic: anti-parallel neighbours count reversed."),
     ("--chirality", click.FLOAT, "Turn omega (radians per unit time, counter-clockwise) every step, 2D only."),
     ("--field", str, "Direction g of an external field such as 1,0 (any length)."),
@@ -93,14 +96,11 @@ def model_options(func=None, *, defaults: dict | None = None):
     return decorate if func is None else decorate(func)
 
 
-#: The formats pictures can be saved in (``--plot-format``).
-PICTURE_FORMATS = ("png", "svg", "pdf")
-
 #: What a run folder holds that flocking writes: the run's files, the pictures and movie
 #: of ``flocking run`` and ``flocking animate``, and ``flocking analyze``'s default outputs.
 #: ``--force`` removes these (and their temporaries) and nothing else.
 RUN_FILES = ("trajectory.gsd", "observables.csv", "config.toml", "checkpoint.npz", "movie.mp4", "analysis.json",
-             *(f"{stem}.{ext}" for stem in ("snapshot", "polar_order") for ext in PICTURE_FORMATS))
+             *(f"{stem}.{ext}" for stem in ("snapshot", "polar_order") for ext in opt.FORMATS))
 
 #: Choices about what a run leaves besides its data, with their defaults; a resumed run
 #: keeps the choices its first part made unless the command line says otherwise.
@@ -116,7 +116,8 @@ def written_by_flocking(name: str) -> bool:
     """
     from .analyze import OUTPUTS
 
-    names = set(RUN_FILES) | {stem + ext for stem, *_ in OUTPUTS.values() for ext in (".csv", *(f".{e}" for e in PICTURE_FORMATS))}
+    extensions = (".csv", *(f".{e}" for e in opt.FORMATS))
+    names = set(RUN_FILES) | {stem + ext for stem, *_ in OUTPUTS.values() for ext in extensions}
     for name_ in names:
         ext = os.path.splitext(name_)[1]
         if re.fullmatch(re.escape(name_) + r"(\.\d+)?\.tmp", name) or name == f".{name_}.part{ext}":
@@ -125,10 +126,10 @@ def written_by_flocking(name: str) -> bool:
 
 
 def check_output_folder(out: str, force: bool) -> None:
-    """Refuse a file, and an existing non-empty folder unless ``force``."""
+    """Refuse a file, a folder that cannot be made or written (:func:`.options.check_folder`),
+    and an existing non-empty folder unless ``force``."""
+    opt.check_folder("out", out)
     if os.path.exists(out):
-        if not os.path.isdir(out):
-            raise ParameterError(f"out: {out!r} exists and is not a folder")
         if os.listdir(out) and not force:
             raise ParameterError(f"out: folder {out!r} is not empty; use --force to replace the run in it "
                                  f"or another --out")
@@ -158,8 +159,38 @@ def default_output_folder() -> str:
     return os.path.join("runs", f"run-{i:04d}")
 
 
-@click.command()
+#: What ``flocking run --help`` shows after the options: a config file for what no option sets.
+CONFIG_EXAMPLE = """\b
+A config file (--config FILE.toml, the names of the options with _ for -) sets anything
+an option sets, and the lists and tables that no option covers, such as three species
+with their own parameters and the coupling matrix J (row: who aligns, column: with whom):
+\b
+  n = 3000
+  box = 40.0
+  boundary = "wall"
+  obstacles = [{centre = [12.0, 20.0], radius = 3.0}, {centre = [28.0, 20.0], radius = 3.0}]
+  species = [{name = "A", fraction = 0.6},
+             {name = "B", fraction = 0.3, noise = 2.0},
+             {name = "C", fraction = 0.1, speed = 1.0, field_strength = 0.5}]
+  coupling = [[1.0, 1.0, -1.0], [1.0, 1.0, 0.0], [1.0, 1.0, 1.0]]
+  field = [1.0, 0.0]
+\b
+Positions (--obstacle, centre) are box coordinates, each axis from 0 to L. docs/model.md
+gives every parameter's meaning and range."""
+
+
+@click.command(short_help="Simulate a flock into a run folder.", epilog=CONFIG_EXAMPLE)
 @model_options
+@click.option("--obstacle", "obstacles", multiple=True, metavar="X,Y,R",
+              help="A disc of radius R centred at (X, Y), box coordinates from 0 to L (3D: X,Y,Z,R, a sphere); "
+                   "repeat for more. Replaces the config file's obstacles.  [default: none]")
+@click.option("--species-b", type=click.FLOAT, default=None, metavar="FRACTION",
+              help="A second species, B, with this fraction of the particles (A has the rest). Replaces the "
+                   "config file's species and coupling.  [default: none, one species]")
+@click.option("--cross-coupling", type=click.FLOAT, default=None, metavar="J",
+              help="With two species: weight J of the other species' headings in a particle's sum (1: align "
+                   "with them as with one's own, -1: turn away from them, 0: ignore them); own species 1.  "
+                   "[default: 1]")
 @click.option("--steps", type=click.INT, default=None,
               help=with_default("Number of steps (with --resume: the run's new total).", "--steps"))
 @click.option("--every", type=click.INT, default=None,
@@ -168,54 +199,60 @@ def default_output_folder() -> str:
               help=with_default("A checkpoint every K steps (0: only at the end or on a stop).", "--checkpoint-every"))
 @click.option("--init", default=None,
               help=with_default("random, aligned, or a GSD file whose last frame starts the run.", "--init"))
-@click.option("--backend", default=None,
-              help=with_default("cpu (numba, multi-threaded), reference (NumPy) or cuda.", "--backend"))
-@click.option("--precision", type=click.Choice(["float64", "float32"]), default=None,
+@opt.backend("cpu (numba, multi-threaded), reference (NumPy, slow, the oracle) or cuda (an NVIDIA GPU).")
+@click.option("--precision", type=opt.OneOf(["float64", "float32"]), default=None,
               help=with_default("Floating-point precision; float32 with --backend cuda only.", "--precision"))
 @click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
               help="A TOML file of parameters; options given here override it.")
 @click.option("--resume", "resume_dir", default=None,
               help="Continue the run in this folder from its last checkpoint, bit for bit.")
-@click.option("--out", default=None, help="Output folder.  [default: runs/run-NNNN, a new one]")
+@opt.out("Output folder.", "runs/run-NNNN, a new one")
 @click.option("--force", is_flag=True,
               help="Use a non-empty --out: the files flocking wrote there go, others stay.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
-@click.option("--plots/--no-plots", default=None,
-              help="snapshot.png and polar_order.png at the end.  [default: --plots; with --resume, as the run began]")
+@opt.quiet()
+@opt.plots("snapshot.png and polar_order.png at the end.", "--plots; with --resume, as the run began")
 @click.option("--movie/--no-movie", default=None,
               help="movie.mp4 at the end (see flocking animate).  [default: --no-movie; with --resume, as the run "
                    "began]")
 @click.option("--show", is_flag=True, help="A window that shows the flock while it runs.")
-@click.option("--theme", default="dark", help="Pictures and movie: dark or light.  [default: dark]")
-@click.option("--dpi", type=click.FLOAT, default=None, help="Pictures: pixels per inch.  [default: 200]")
-@click.option("--plot-format", default="png", help="Pictures: png, svg or pdf.  [default: png]")
-@click.option("--color", default="auto",
-              help="Pictures, movie and --show: colour particles by heading or species (auto: species when the "
-                   "run has several).  [default: auto]")
-def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, dpi, plot_format, color, **options):
-    """Simulate a flock and write trajectory.gsd, observables.csv and config.toml into a folder.
+@opt.theme
+@opt.dpi()
+@opt.picture_format
+@opt.color
+def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, dpi, fmt, color, obstacles, species_b,
+        cross_coupling, **options):
+    """Simulate a flock and write trajectory.gsd, observables.csv, config.toml and
+    checkpoint.npz into a folder, and two pictures: snapshot.png and polar_order.png.
+
+    Every option is checked, and the kernels compiled, before anything is written.
 
     \b
     Examples:
       flocking run
       flocking run --n 10000 --noise 2.5 --steps 5000 --every 50 --out hot
       flocking run --dim 3 --neighbours topological --k 7 --noise-type vectorial --noise 0.4
+      flocking run --boundary wall --obstacle 16,16,8 --noise 0.5 --steps 4000 --out mill
+      flocking run --species-b 0.5 --cross-coupling -1 --out mixture
       flocking run --config runs/run-0001/config.toml --out again   # the same data
       flocking run --resume hot --steps 10000                       # continue, or extend
       flocking compare runs/run-0001 again                          # check it
     """
-    looks = dict(theme=theme, dpi=dpi, fmt=plot_format, color=color)
+    looks = dict(theme=theme, dpi=dpi, fmt=fmt, color=color)
     asked = {"plots": plots, "movie": movie}
-    if movie or plots is not False or show:
-        from ..viz.movie import check_picture_options
-
-        check_picture_options(**looks)
     show = show and {"theme": theme, "color": color}  # how the live view looks
+    given = {"obstacle": obstacles or None, "species_b": species_b, "cross_coupling": cross_coupling}
     if resume_dir is not None:
-        outputs = resume(resume_dir, config_file, out, quiet, options, asked, show=show)
+        outputs = resume(resume_dir, config_file, out, quiet, {**options, **given}, asked, show=show)
         return pictures(resume_dir, quiet, **outputs, **looks)
     file_layer = RunConfig.load(config_file) if config_file else {}
-    cfg = RunConfig.from_layers(file_layer, options)
+    given_options = {k: v for k, v in options.items() if v is not None}
+    layer = extension_layer(obstacles, species_b, cross_coupling, {**file_layer, **given_options})
+    if "species" in layer:  # the file's coupling was for the file's species
+        file_layer.pop("coupling", None)
+    try:
+        cfg = RunConfig.from_layers(file_layer, options, layer)
+    except ParameterError as err:
+        raise ParameterError(from_option(str(err), layer)) from None
     cfg.check_memory()
     out = out or default_output_folder()
     check_output_folder(out, force)
@@ -223,6 +260,7 @@ def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, d
     from ..simulation import Simulation
 
     sim = Simulation(cfg.model, state, backend=cfg.backend, history=False, **cfg.backend_options())
+    prepare(cfg, sim, out, quiet)  # the kernels compiled and tried: nothing is written before
     if force:
         removed, kept = clear_output_folder(out, cfg.init)
         if removed and not quiet:
@@ -231,6 +269,59 @@ def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, d
     outputs = {k: OUTPUT_CHOICES[k] if v is None else v for k, v in asked.items()}
     execute(cfg, sim, out, quiet, show=show, outputs=outputs)
     pictures(out, quiet, **outputs, **looks)
+
+
+#: the options that make a layer of lists and tables, and the key of the config each sets
+EXTENSION_OPTIONS = {"obstacles": "obstacle", "species": "species_b", "coupling": "cross_coupling"}
+
+
+def extension_layer(obstacles, species_b, cross_coupling, below: dict) -> dict:
+    """The obstacles, species and coupling that ``--obstacle``, ``--species-b`` and
+    ``--cross-coupling`` give, as config keys; ``below`` is what the config file and the
+    other options say (for the dimension, and the species a coupling is for).
+
+    >>> extension_layer(("16,16,4",), 0.25, -1.0, {})
+    {'obstacles': [{'centre': [16.0, 16.0], 'radius': 4.0}], 'species': [{'fraction': 0.75}, {'fraction': 0.25}], \
+'coupling': [[1.0, -1.0], [-1.0, 1.0]]}
+    >>> extension_layer((), None, -1.0, {"species": [{"fraction": 0.5}] * 3})
+    Traceback (most recent call last):
+    ...
+    flocking.checks.ParameterError: cross_coupling: needs two species, from --species-b or a config file (got 3)
+    """
+    layer = {}
+    if obstacles:
+        dim = below.get("dim") or 2
+        example = "16,16,4" if dim == 2 else "16,16,16,4"
+        layer["obstacles"] = []
+        for text in obstacles:
+            values = comma_numbers("obstacle", text, f"{dim + 1} numbers such as {example}")
+            if len(values) != dim + 1:
+                raise ParameterError(f"obstacle: must be {'X,Y,R' if dim == 2 else 'X,Y,Z,R'} in {dim}D, centre in "
+                                     f"box coordinates and radius, such as {example} (got {text!r})")
+            layer["obstacles"].append({"centre": values[:-1], "radius": values[-1]})
+    if species_b is not None:
+        if not 0 < species_b < 1:
+            raise ParameterError(f"species_b: must be a fraction in (0, 1) (got {species_b})")
+        layer["species"] = [{"fraction": 1 - species_b}, {"fraction": species_b}]
+    if cross_coupling is not None:
+        count = 2 if species_b is not None else len(below.get("species") or ())
+        if count != 2:
+            raise ParameterError(f"cross_coupling: needs two species, from --species-b or a config file (got {count})")
+        layer["coupling"] = [[1.0, cross_coupling], [cross_coupling, 1.0]]
+    return layer
+
+
+def from_option(message: str, layer: dict) -> str:
+    """A model's error about obstacles, species or coupling, in the words of the option
+    that set them when one did (``obstacles: ...`` -> ``obstacle: ...``).
+
+    >>> from_option("obstacles: radii above one step", {"obstacles": []})
+    'obstacle: radii above one step'
+    """
+    key, sep, rest = message.partition(": ")
+    if sep and key in layer and key in EXTENSION_OPTIONS:
+        return f"{EXTENSION_OPTIONS[key]}: {rest}"
+    return message
 
 
 def pictures(out: str, quiet: bool, plots: bool, movie: bool, **looks) -> None:
@@ -276,15 +367,29 @@ def resume(folder: str, config_file, out, quiet: bool, options: dict, asked: dic
                              f"(got {cfg.steps})")
     before = sim.info.get("run", {})
     outputs = {k: before.get(k, OUTPUT_CHOICES[k]) if v is None else v for k, v in asked.items()}
+    prepare(cfg, sim, folder, quiet, resuming=True)
     rewind(folder, sim.step, sim.origin, cfg.every)
     execute(cfg, sim, folder, quiet, append=True, show=show, outputs=outputs)
     return outputs
 
 
+def prepare(cfg: RunConfig, sim, out: str, quiet: bool, resuming: bool = False) -> None:
+    """Say what runs where, and compile (or load) and try the kernels of the run on a tiny
+    copy of its model (:func:`warm_up`), before anything is written."""
+    if not quiet:
+        verb = f"resuming at step {sim.step}" if resuming else "running"
+        click.echo(f"flocking: {verb} {cfg.model} -> {out}", err=True)
+    compiled = warm_up(cfg, announce=None if quiet else lambda: click.echo(
+        f"flocking: compiling the kernels for this kind of run, {COMPILE_TIME} (only once: numba caches "
+        f"them) ...", err=True))
+    if compiled is not None and not quiet:
+        click.echo(f"flocking: compiled in {compiled:.0f} s", err=True)
+
+
 def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, show: bool = False,
             outputs: dict | None = None) -> None:
-    """Run ``sim`` (built from ``cfg``) to ``cfg.steps`` into the folder ``out``; the
-    checkpoints record ``outputs`` (:data:`OUTPUT_CHOICES`) for a later resume."""
+    """Run ``sim`` (built from ``cfg`` and :func:`prepare`-d) to ``cfg.steps`` into the folder
+    ``out``; the checkpoints record ``outputs`` (:data:`OUTPUT_CHOICES`) for a later resume."""
     from ..writers import CheckpointWriter, GSDWriter, ObservablesWriter
 
     mode = "a" if append else "w"
@@ -299,9 +404,6 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
         from ..viz.live import LiveView
 
         sim.writers.append(LiveView(every=cfg.every or 10, **(show if isinstance(show, dict) else {})))
-    if not quiet:
-        verb = f"resuming at step {sim.step}" if append else "running"
-        click.echo(f"flocking: {verb} {cfg.model} -> {out}", err=True)
     interrupted = []
 
     def stop(signum, frame):
@@ -312,11 +414,6 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     # a file-size limit then raises OSError (EFBIG) like a full disk, instead of killing us
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    compiled = warm_up(cfg, announce=None if quiet else lambda: click.echo(
-        f"flocking: compiling the kernels for this kind of run, {COMPILE_TIME} (only once: numba caches "
-        f"them) ...", err=True))
-    if compiled is not None and not quiet:
-        click.echo(f"flocking: compiled in {compiled:.0f} s", err=True)
     start, first = time.perf_counter(), sim.step
     try:
         sim.run(sim.origin + cfg.steps - sim.step, progress=not quiet and sys.stderr.isatty())
@@ -336,9 +433,9 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
 
 
 #: How long numba takes to compile the kernels of a new kind of run (2D or 3D, metric or
-#: topological, angular or vectorial noise, delay or not): 30 to 50 s of CPU time measured
-#: with ``flocking run`` on the project's 2-core machine, minutes when it was busy.
-COMPILE_TIME = "typically 30 to 50 s, longer on a busy machine"
+#: topological, angular or vectorial noise, delay or not): 12 to 50 s on the project's 2-core
+#: machine, 1.5 to 3 minutes while other jobs shared it (docs/performance.md, "Compiling").
+COMPILE_TIME = "under a minute on 2 cores, a few minutes on a busy machine"
 
 
 def tiny_model(model: Model) -> Model:

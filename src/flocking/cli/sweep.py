@@ -9,25 +9,25 @@ import time
 import click
 
 from ..model import ParameterError
+from . import options as opt
 
 
-@click.command()
+@click.command(short_help="Run every point of a sweep file (a phase diagram).")
 @click.argument("sweep_file", metavar="SWEEP.toml", type=click.Path(dir_okay=False))
-@click.option("--out", default=None, help="Output folder. [default: the sweep file's name, here]")
+@opt.out("Output folder.", "the sweep file's name, here")
 @click.option("--results", default=None,
-              help="Results file, .nc (netCDF) or .zarr. [default: OUT/results.nc]")
+              help="Results file, .nc (netCDF) or .zarr.  [default: OUT/results.nc]")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
-              help="Address of a running Dask scheduler, e.g. tcp://10.0.0.1:8786. [default: a local cluster]")
+              help="Address of a running Dask scheduler, e.g. tcp://10.0.0.1:8786.  [default: a local cluster]")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Worker processes of the local cluster. [default: one per core]")
+              help="Worker processes of the local cluster.  [default: one per core]")
 @click.option("--host", default=None, metavar="ADDRESS",
-              help="Interface the local cluster and its dashboard listen on. [default: 127.0.0.1]")
+              help="Interface the local cluster and its dashboard listen on.  [default: 127.0.0.1]")
 @click.option("--serial", is_flag=True, help="Run the points one after another in this process, without Dask.")
-@click.option("--backend", type=click.Choice(["cpu", "cuda", "reference"]), default=None,
-              help="Backend of every run, in place of the sweep file's. cuda runs the points that share a "
-                   "shape as ensembles, in this process on its GPU, or on the GPU workers of --scheduler. "
-                   "[default: the sweep file's, else cpu]")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar, no summary.")
+@opt.backend("Backend of every run, in place of the sweep file's. cuda runs the points that share a shape as "
+             "ensembles, in this process on its GPU, or on the GPU workers of --scheduler.",
+             "the sweep file's, else cpu")
+@opt.quiet()
 def sweep(sweep_file, out, results, scheduler, workers, host, serial, backend, quiet):
     """Run every point of a sweep file and gather the results into an xarray Dataset.
 
@@ -55,12 +55,12 @@ def sweep(sweep_file, out, results, scheduler, workers, host, serial, backend, q
         raise ParameterError(f"{option}: a cuda sweep without --scheduler runs its ensembles in this process, "
                              f"on this machine's GPU; leave out --workers and --host")
     out = out or os.path.splitext(os.path.basename(sweep_file))[0]
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise ParameterError(f"out: {out!r} exists and is not a folder")
+    opt.check_folder("out", out)
     results = results or os.path.join(out, "results.nc")
     from ..sweep.results import check_results_path, gather, save
 
     check_results_path(results)
+    opt.check_folder("results", os.path.dirname(os.path.abspath(results)))
     serial = serial or (gpu and not scheduler)
     dask = () if serial else ("dask", "distributed") + (() if scheduler else ("cryptography",))
     require("xarray", "netCDF4" if results.endswith(".nc") else "zarr", *dask)
@@ -92,29 +92,36 @@ def sweep(sweep_file, out, results, scheduler, workers, host, serial, backend, q
     save(gather(spec, out), results)
     elapsed = time.perf_counter() - start
     say(f"flocking sweep: {summary['done']} run, {summary['failed']} failed, {summary['skipped']} already "
-        f"stored, in {elapsed:.1f} s on {summary['where']}; wrote {results}")
+        f"stored, in {elapsed:.1f} s {place(summary['where'])}; wrote {results}")
     if summary["failed"]:
         click.echo(f"flocking sweep: {summary['failed']} runs failed (recorded in {out}/points); "
                    f"run the same command again to retry them", err=True)
         sys.exit(1)
 
 
-@click.command("plot-sweep")
+def place(where: str) -> str:
+    """Where an executor ran the points, in the summary's words.
+
+    >>> place("in-process"), place("2 Dask workers at tcp://127.0.0.1:4242")
+    ('in this process', 'on 2 Dask workers at tcp://127.0.0.1:4242')
+    """
+    return "in this process" if where == "in-process" else f"on {where}"
+
+
+@click.command("plot-sweep", short_help="Plot a sweep: order, susceptibility, Binder cumulant.")
 @click.argument("results", metavar="RESULTS")
-@click.option("--view", type=click.Choice(["order", "fss"]), default="order", show_default=True,
+@click.option("--view", type=opt.OneOf(["order", "fss"]), default="order", show_default=True,
               help="order: order, susceptibility and Binder cumulant against --x; fss: Binder cumulant "
                    "crossings and the peak susceptibility against the system size.")
-@click.option("--x", "x", default=None, help="Swept parameter on the horizontal axis. "
+@click.option("--x", "x", default=None, help="Swept parameter on the horizontal axis.  "
               "[default: the first that is not a system size]")
-@click.option("--theme", type=click.Choice(["dark", "light"]), default="dark", show_default=True,
-              help="dark for screens and slides, light for paper.")
-@click.option("--size", type=click.Choice(["column", "page", "slide"]), default="page", show_default=True,
-              help="Width and fonts for a paper column (panels stacked), a page or a slide.")
-@click.option("--dpi", type=click.FloatRange(min=10, max=2000), default=None,
-              help="Pixels per inch of a .png. [default: 200]")
-@click.option("--out", default=None, help="Figure file: .png, .svg or .pdf. [default: RESULTS with .png, "
-              "or with -fss.png for --view fss]")
-def plot_sweep(results, view, x, theme, size, dpi, out):
+@opt.theme
+@opt.size
+@opt.dpi()
+@opt.out("Figure file: .png, .svg or .pdf (the extension decides).",
+         "RESULTS with .png, or with -fss.png for --view fss")
+@opt.quiet("Nothing on stderr.")
+def plot_sweep(results, view, x, theme, size, dpi, out, quiet):
     """Plot a sweep: one curve per system size (and per value of any other swept parameter).
 
     RESULTS is a results file (.nc, .zarr) or a sweep output folder. Points are means over
@@ -128,17 +135,19 @@ def plot_sweep(results, view, x, theme, size, dpi, out):
       flocking plot-sweep vicsek --view fss --out fss.png
     """
     from ..sweep import require
-    from ..viz import style
 
     if out is None:
         base = results.rstrip("/")
         base = os.path.join(base, "results") if os.path.isdir(base) and not base.endswith(".zarr") else base
         out = os.path.splitext(base)[0] + ("-fss" if view == "fss" else "") + ".png"
-    style.check_format(out)
+    if os.path.splitext(out)[1].lower().lstrip(".") not in opt.FORMATS:
+        raise ParameterError(f"out: must end in .png, .svg or .pdf (got {out!r})")
+    opt.check_file("out", out)
     require("xarray")
     from ..sweep.figures import plot
     from ..sweep.results import open_results
 
     ds = open_results(results)
-    click.echo(f"flocking plot-sweep: wrote {plot(ds, out, x, view=view, theme=theme, size=size, dpi=dpi)}",
-               err=True)
+    path = plot(ds, out, x, view=view, theme=theme, size=size, dpi=dpi)
+    if not quiet:
+        click.echo(f"flocking plot-sweep: wrote {path}", err=True)
