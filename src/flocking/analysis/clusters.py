@@ -32,7 +32,7 @@ import numpy as np
 
 from ..space import Space
 from . import snapshots
-from .base import Analysis, format_value, legend, log_ticks, pair_notes, positive, result
+from .base import Analysis, format_value, log_ticks, pair_notes, positive, result
 
 
 @numba.njit(cache=True)
