@@ -19,8 +19,8 @@ from flocking.backends.cpu import CPUBackend
 
 
 def cases(n: int, density: float, dim: int = 2) -> dict[str, dict]:
-    """Model arguments of each case: the plain model, then one extension at a time
-    (chirality in 2D only)."""
+    """Model arguments of each case: the plain model, one extension at a time (chirality in
+    2D only), then combinations."""
     side = (n / density) ** (1.0 / dim)
     field = [1.0, 0.0, 0.0][:dim]
     found = {
@@ -33,9 +33,19 @@ def cases(n: int, density: float, dim: int = 2) -> dict[str, dict]:
         "nematic": dict(alignment_rule="nematic"),
         "chirality 0.1": dict(chirality=0.1),
         "field": dict(field=field, field_strength=0.2),
+        "cohesion": dict(cohesion=1.0),
+        "walls, cone, chirality, field": dict(boundary="wall", vision=2.1, chirality=0.1, field=field,
+                                              field_strength=0.2),
+        "every extension": dict(boundary="periodic,wall", obstacles=[{"centre": [side / 2] * dim, "radius": side / 8}],
+                                species=[{"fraction": 0.5}, {"fraction": 0.5, "noise": 2.0}],
+                                coupling=[[1.0, -1.0], [-1.0, 1.0]], vision=2.1, alignment_rule="nematic",
+                                chirality=0.1, field=field, field_strength=0.2, cohesion=1.0),
     }
     if dim == 3:
-        del found["chirality 0.1"]
+        for name in ("chirality 0.1", "walls, cone, chirality, field"):
+            del found[name]
+        found["every extension"].pop("chirality")
+        found["walls, cone, field"] = dict(boundary="wall", vision=2.1, field=field, field_strength=0.2)
     return found
 
 

@@ -25,7 +25,7 @@ def test_uniform_points_give_alpha_one_half(dim):
     np.testing.assert_allclose(nf.std**2, nf.mean * (1 - p), rtol=0.15)
 
 
-def test_clumped_points_give_alpha_one():
+def test_clumped_points_give_alpha_one_half_and_twenty_times_the_poisson_variance():
     # whole clumps of 20 particles at uniform positions: dn ~ <n>^(1/2) at large scales but the
     # count is 20 x a Poisson count, so dn^2 = 20 <n> exactly in expectation
     rng = np.random.default_rng(3)

@@ -209,7 +209,7 @@ def test_animate_command_movies_pictures_and_their_errors(run_dir, tmp_path):
                                "--size", "column", "--theme", "light", "-q"])
     assert pic.exit_code == 0, pic.output
     svg = (tmp_path / "p.svg").read_text()
-    assert svg.startswith("<?xml") and "<image" in svg or "<path" in svg
+    assert svg.startswith("<?xml") and "<image" in svg and "<path" in svg
     for args, word in [(["animate", str(tmp_path / "nope")], "no such run folder"),
                        (["animate", str(run_dir), "--theme", "purple"], "--theme: must be one of dark, light"),
                        (["animate", str(run_dir), "--out", str(tmp_path / "m.mov")],

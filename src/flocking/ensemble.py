@@ -34,7 +34,7 @@ from . import backends
 from .backends.cuda import Engine, check_models, ensemble_key
 from .model import Model, ParameterError
 from .observables import extra_names, extra_observables
-from .simulation import Simulation, _next_due
+from .simulation import Simulation, next_due
 from .state import State, frame_arrays
 
 
@@ -159,7 +159,7 @@ class Ensemble:
                 if w.due(step, self.origin, last):
                     w.write(view)
             while step < last:
-                target = min([last, *(_next_due(w, step, self.origin, last) for _, w in everyone)])
+                target = min([last, *(next_due(w, step, self.origin, last) for _, w in everyone)])
                 phi = self.advance(target - step)
                 out[:, step - first:target - first] = phi
                 done = np.arange(step + 1, target + 1)

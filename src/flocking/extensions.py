@@ -8,6 +8,10 @@ check raises a one-line :class:`~flocking.checks.ParameterError` naming the para
 ('periodic', 'wall')
 >>> parse_obstacles([{"centre": [5, 5], "radius": 2}], 2)
 (Obstacle(centre=(5.0, 5.0), radius=2.0),)
+>>> parse_obstacles([{"center": [5, 5], "radius": 2}], 2)
+Traceback (most recent call last):
+...
+flocking.checks.ParameterError: obstacles: unknown key 'center'; did you mean 'centre'? (allowed: centre, radius)
 >>> species_counts(parse_species([{"fraction": 0.3}, {"fraction": 0.7}], 2), 10)
 (3, 7)
 """
@@ -15,6 +19,7 @@ check raises a one-line :class:`~flocking.checks.ParameterError` naming the para
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import numbers
 from typing import Any
@@ -73,7 +78,9 @@ def _mapping(name: str, value: Any, allowed: tuple[str, ...], where: str) -> dic
         fail(name, f"a list of tables such as {where}", value)
     for key in value:
         if key not in allowed:
-            raise ParameterError(f"{name}: unknown key {key!r} (allowed: {', '.join(allowed)})")
+            close = difflib.get_close_matches(str(key), allowed, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ParameterError(f"{name}: unknown key {key!r}{hint} (allowed: {', '.join(allowed)})")
     return value
 
 

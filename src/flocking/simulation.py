@@ -120,7 +120,7 @@ class Simulation:
                 if w.due(step, self.origin, last):
                     w.write(self)
             while step < last and not self._stop:
-                target = min(last, step + chunk, *(_next_due(w, step, self.origin, last) for w in self.writers))
+                target = min(last, step + chunk, *(next_due(w, step, self.origin, last) for w in self.writers))
                 phi = self.backend.advance(target - step)
                 if not np.isfinite(phi).all():
                     self._non_finite(step, phi)
@@ -201,7 +201,9 @@ class Simulation:
         return sim
 
 
-def _next_due(writer, step: int, origin: int, last: int) -> int:
+def next_due(writer, step: int, origin: int, last: int) -> int:
+    """The next step after ``step`` (at most ``last``) at which ``writer`` is due: periods
+    count from the run's ``origin``; a writer with ``every <= 0`` waits for ``last``."""
     if writer.every <= 0:
         return last
     return min(last, origin + ((step - origin) // writer.every + 1) * writer.every)

@@ -229,8 +229,8 @@ class MeanSquareDisplacement(Analysis):
         colours = style.palette(theme)
         x = self.lag_times
         ax.loglog(x, self.msd, "o-", ms=3, lw=1, color=colours[0], label="MSD")
-        ax.loglog(x, self.msd[0] * (x / x[0]) ** 2, ":", color=colours[-1], lw=1, label=r"$\propto\tau^2$")
-        ax.loglog(x, self.msd[-1] * (x / x[-1]), "--", color=colours[-1], lw=1, label=r"$\propto\tau$")
+        ax.loglog(x, self.msd[0] * (x / x[0]) ** 2, ":", color=colours[-1], lw=1, label=r"$\propto\Delta t^2$")
+        ax.loglog(x, self.msd[-1] * (x / x[-1]), "--", color=colours[-1], lw=1, label=r"$\propto\Delta t$")
         style.label_axes(ax, "lag", "msd")
         log_ticks(ax)
         legend(ax, theme)

@@ -54,7 +54,7 @@ from ..model import Model, ParameterError  # noqa: E402
 from ..observables import moment_width  # noqa: E402
 from ..state import State  # noqa: E402
 from . import cells, cpu_kernels  # noqa: E402
-from .features import features, ring_width, step_record, tables  # noqa: E402
+from .features import features, ring_width, step, tables  # noqa: E402
 
 
 def kernel_name(model: Model) -> str:
@@ -113,10 +113,10 @@ class CPUBackend:
             self._spd, self._tmp_spd = np.empty(n), np.empty(n)
         self._step_count = state.step
         self._features = features(model)
-        self._kernel = getattr(cpu_kernels.build(self._features), kernel_name(model))
+        self._kernel = getattr(cpu_kernels.build(self._features, d), kernel_name(model))
         units = cells.work_units(self._nc, n, 0 if kernel_name(model) == "lines" else 1)
         self._partial = np.zeros((units, moment_width(model) if model.extended else 3))
-        self._params = step_record(model)
+        self._params = step(model)
         self._tables = tables(model)
         self._seed = np.uint64(model.seed)  # its own argument: a double would round seeds above 2**53
         # ring[t % delay, id]: the neighbours' sums at step t (cpu_kernels.remember)
@@ -180,8 +180,7 @@ class CPUBackend:
         with cohesion, the pull, the push and the core count) for the current state."""
         n = self._pos.shape[1]
         ring = np.zeros((1, n, self._ring.shape[2]))
-        params = self._params.copy()
-        params[0]["delay"] = 1  # record the sums in a one-slot ring; the step itself is thrown away
+        params = self._params._replace(delay=1)  # the sums into a one-slot ring; the step is thrown away
         self._kernel(self._pos, self._head, self._spd, self._ids, self._start, self._nc, self._box,
                      *self._scratch(), self._cell.copy(), ring, 0,
                      self._step_count, self._seed, params, self._partial.copy(), numba.get_num_threads(),

@@ -31,8 +31,9 @@ and its own heading goes back with weight 1.
 Determinism. Work units are fixed by the model and a particle's new heading depends only
 on the sorted arrays and on counter-based random numbers; each unit's moment sums are
 added in slot order and the units in order, so no result depends on the number of
-threads. Parameters travel as one record (:data:`~flocking.backends.features.STEP`) and
-the extensions' :class:`~flocking.backends.features.Tables`.
+threads. Parameters travel as named tuples: the step's
+(:class:`~flocking.backends.features.Step`) and the extensions'
+(:class:`~flocking.backends.features.Tables`).
 """
 
 from __future__ import annotations
@@ -161,15 +162,8 @@ def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, C
                        buf[jr, j] if CPL else 1.0, NEM, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
 
 
-@numba.njit(cache=True, inline="always")
-def plus8(a, b):
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5], a[6] + b[6], a[7] + b[7])
-
-
-@numba.njit(cache=True, inline="always")
-def plus11(a, b):
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5], a[6] + b[6], a[7] + b[7],
-            a[8] + b[8], a[9] + b[9], a[10] + b[10])
+# The weighed sums keep one scalar per lane and quantity, like the plain ones: held in
+# tuples, the lanes were not packed into SIMD registers (three times slower per candidate).
 
 
 @numba.njit(cache=True, inline="always")
@@ -177,33 +171,52 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o, CP
     """As :func:`reduce_2d` (the particle itself included, four lanes), each candidate
     weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count, and with
     cohesion the pull (2), the push (2) and the core count."""
-    zero = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
         ux = hx[i]
         uy = hy[i]
         jr = np.uint64(4 + int(tag[i])) if CPL else np.uint64(0)
-        s0 = s1 = s2 = s3 = zero
+        a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = n0 = n1 = n2 = n3 = 0.0
+        c0 = c1 = c2 = c3 = d0 = d1 = d2 = d3 = 0.0
+        e0 = e1 = e2 = e3 = f0 = f1 = f2 = f3 = g0 = g1 = g2 = g3 = 0.0
         for r in range(ranges.shape[0]):
             lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                s0 = plus8(s0, pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE, COH))
-                s1 = plus8(s1, pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE, COH))
-                s2 = plus8(s2, pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE,
-                                       COH))
-                s3 = plus8(s3, pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE,
-                                       COH))
-        for a in range(8 if COH else 3):
-            out[a, o + i - i0] = (s0[a] + s1[a]) + (s2[a] + s3[a])
+                p0, q0, w0, pc0, pd0, pe0, pf0, pg0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL,
+                                                              NEM, CONE, COH)
+                p1, q1, w1, pc1, pd1, pe1, pf1, pg1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, coh,
+                                                              CPL, NEM, CONE, COH)
+                p2, q2, w2, pc2, pd2, pe2, pf2, pg2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr,
+                                                              cone, coh, CPL, NEM, CONE, COH)
+                p3, q3, w3, pc3, pd3, pe3, pf3, pg3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr,
+                                                              cone, coh, CPL, NEM, CONE, COH)
+                a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+                b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+                n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
+                if COH:
+                    c0, c1, c2, c3 = c0 + pc0, c1 + pc1, c2 + pc2, c3 + pc3
+                    d0, d1, d2, d3 = d0 + pd0, d1 + pd1, d2 + pd2, d3 + pd3
+                    e0, e1, e2, e3 = e0 + pe0, e1 + pe1, e2 + pe2, e3 + pe3
+                    f0, f1, f2, f3 = f0 + pf0, f1 + pf1, f2 + pf2, f3 + pf3
+                    g0, g1, g2, g3 = g0 + pg0, g1 + pg1, g2 + pg2, g3 + pg3
+        q = o + i - i0
+        out[0, q] = (a0 + a1) + (a2 + a3)
+        out[1, q] = (b0 + b1) + (b2 + b3)
+        out[2, q] = (n0 + n1) + (n2 + n3)
+        if COH:
+            out[3, q] = (c0 + c1) + (c2 + c3)
+            out[4, q] = (d0 + d1) + (d2 + d3)
+            out[5, q] = (e0 + e1) + (e2 + e3)
+            out[6, q] = (f0 + f1) + (f2 + f3)
+            out[7, q] = (g0 + g1) + (g2 + g3)
 
 
 @numba.njit(cache=True, inline="always")
 def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out, o, CPL, NEM, CONE, COH):
     """:func:`wreduce_2d` in 3D; rows: heading sum (3), count, pull (3), push (3), core count."""
-    zero = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
@@ -212,31 +225,56 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out
         uy = hy[i]
         uz = hz[i]
         jr = np.uint64(6 + int(tag[i])) if CPL else np.uint64(0)
-        s0 = s1 = s2 = s3 = zero
+        a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = c0 = c1 = c2 = c3 = n0 = n1 = n2 = n3 = 0.0
+        px0 = px1 = px2 = px3 = py0 = py1 = py2 = py3 = pz0 = pz1 = pz2 = pz3 = 0.0
+        qx0 = qx1 = qx2 = qx3 = qy0 = qy1 = qy2 = qy3 = qz0 = qz1 = qz2 = qz3 = 0.0
+        k0 = k1 = k2 = k3 = 0.0
         for r in range(ranges.shape[0]):
             lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                s0 = plus11(s0, pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE, COH))
-                s1 = plus11(s1, pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE,
-                                        COH))
-                s2 = plus11(s2, pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL,
-                                        NEM, CONE, COH))
-                s3 = plus11(s3, pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL,
-                                        NEM, CONE, COH))
-        for a in range(11 if COH else 4):
-            out[a, o + i - i0] = (s0[a] + s1[a]) + (s2[a] + s3[a])
+                t0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE, COH)
+                t1 = pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE, COH)
+                t2 = pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE,
+                             COH)
+                t3 = pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE,
+                             COH)
+                a0, a1, a2, a3 = a0 + t0[0], a1 + t1[0], a2 + t2[0], a3 + t3[0]
+                b0, b1, b2, b3 = b0 + t0[1], b1 + t1[1], b2 + t2[1], b3 + t3[1]
+                c0, c1, c2, c3 = c0 + t0[2], c1 + t1[2], c2 + t2[2], c3 + t3[2]
+                n0, n1, n2, n3 = n0 + t0[3], n1 + t1[3], n2 + t2[3], n3 + t3[3]
+                if COH:
+                    px0, px1, px2, px3 = px0 + t0[4], px1 + t1[4], px2 + t2[4], px3 + t3[4]
+                    py0, py1, py2, py3 = py0 + t0[5], py1 + t1[5], py2 + t2[5], py3 + t3[5]
+                    pz0, pz1, pz2, pz3 = pz0 + t0[6], pz1 + t1[6], pz2 + t2[6], pz3 + t3[6]
+                    qx0, qx1, qx2, qx3 = qx0 + t0[7], qx1 + t1[7], qx2 + t2[7], qx3 + t3[7]
+                    qy0, qy1, qy2, qy3 = qy0 + t0[8], qy1 + t1[8], qy2 + t2[8], qy3 + t3[8]
+                    qz0, qz1, qz2, qz3 = qz0 + t0[9], qz1 + t1[9], qz2 + t2[9], qz3 + t3[9]
+                    k0, k1, k2, k3 = k0 + t0[10], k1 + t1[10], k2 + t2[10], k3 + t3[10]
+        q = o + i - i0
+        out[0, q] = (a0 + a1) + (a2 + a3)
+        out[1, q] = (b0 + b1) + (b2 + b3)
+        out[2, q] = (c0 + c1) + (c2 + c3)
+        out[3, q] = (n0 + n1) + (n2 + n3)
+        if COH:
+            out[4, q] = (px0 + px1) + (px2 + px3)
+            out[5, q] = (py0 + py1) + (py2 + py3)
+            out[6, q] = (pz0 + pz1) + (pz2 + pz3)
+            out[7, q] = (qx0 + qx1) + (qx2 + qx3)
+            out[8, q] = (qy0 + qy1) + (qy2 + qy3)
+            out[9, q] = (qz0 + qz1) + (qz2 + qz3)
+            out[10, q] = (k0 + k1) + (k2 + k3)
 
 
 # -- the sums of the search kernel --------------------------------------------------------
 
 
 @numba.njit(cache=True, inline="always")
-def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, CPL, NEM, CONE, COH):
+def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, d, CPL, NEM, CONE, COH):
     """Neighbour candidate ``j`` of slot ``i`` at ``r = (dx, dy, dz)`` by
-    :func:`flocking.rules.physics.neighbour` (``si``: the species of ``i``)."""
-    d = pos.shape[0]
+    :func:`flocking.rules.physics.neighbour` (``si``: the species of ``i``; ``d``: the
+    dimension, a constant of the kernel)."""
     coh = tb.cohesion
     coupling = tb.coupling[si, R.species_of(ids[j], tb.bounds)] if CPL else 1.0
     return R.neighbour(d, dx, dy, dz, d2, inside, head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, head[0, j],
@@ -252,11 +290,10 @@ def plus_counted(s, t):
 
 
 @numba.njit(cache=True, inline="always")
-def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM, CONE, COH, WEIGHTED):
+def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, d, EXT, CPL, NEM, CONE, COH, WEIGHTED):
     """Slot ``i``'s sums over the cells around its own cell ``c``, each cell once, every
     pair by minimum image, none across a wall: ``(S (3), count, pull (3), push (3), core
     count)``; ``S`` and the count include the particle itself unless ``WEIGHTED``."""
-    d = pos.shape[0]
     o0, n0 = cells.axis_cells(c % nc[0], nc[0])
     o1, n1 = cells.axis_cells((c // nc[0]) % nc[1], nc[1])
     o2, n2 = 0, 1
@@ -290,7 +327,7 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM,
                     if d == 3:
                         dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
                         d2 += dz * dz
-                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, CPL, NEM, CONE, COH)
+                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, d, CPL, NEM, CONE, COH)
                     if t[3] != 0.0:  # only what counts is added, as the reference adds it
                         s = plus_counted(s, t)
     if WEIGHTED:  # the count includes the particle itself
@@ -299,10 +336,9 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM,
 
 
 @numba.njit(cache=True, inline="always")
-def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CPL, NEM, CONE, COH, WEIGHTED):
+def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, d, CPL, NEM, CONE, COH, WEIGHTED):
     """As :func:`metric_sums`, over the ``k`` nearest others (in rank order, nearest
     first; the particle itself first unless ``WEIGHTED``)."""
-    d = pos.shape[0]
     nc2 = nc[2] if d == 3 else 1
     l2 = box[2] if d == 3 else 1.0
     h2 = tb.half[2] if d == 3 else np.inf
@@ -320,7 +356,8 @@ def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CP
             dy = R.minimum_image(pos[1, j] - pos[1, i], box[1], tb.half[1])
             if d == 3:
                 dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
-        s = plus_counted(s, pair_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si, CPL, NEM, False, COH))
+        s = plus_counted(s, pair_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si, d, CPL, NEM, False,
+                                       COH))
     return (s[0], s[1], s[2], float(found + 1), s[4], s[5], s[6], s[7], s[8], s[9], s[10])
 
 
@@ -352,16 +389,15 @@ def remember(ring, slot, pid, s, d, COH):
 
 
 @numba.njit(cache=True, inline="always")
-def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed, params, nc, inv, box, tb,
-            EXT, WEIGHTED, COH):
+def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed, p, nc, inv, box, tb,
+            d, EXT, WEIGHTED, COH):
     """Slot ``i``'s new heading and position into ``new_*[:, i]`` and its new cell into
     ``cell[i]``, from its sums ``s`` (:func:`metric_sums`' layout: with ``WEIGHTED``, the
-    others' weighed headings, else the sum with itself; ``params``: the step's record);
+    others' weighed headings, else the sum with itself; ``p``: the step's parameters);
     returns the new heading (``wz``
     is 0 in 2D). In the order of docs/model.md: the delay, cohesion, the update (field,
     noise, alignment, chirality), the move, the walls, the obstacles."""
-    d, n = pos.shape
-    p = params[0]
+    n = pos.shape[1]
     pid = ids[i]
     ux, uy = head[0, i], head[1, i]
     uz = head[2, i] if d == 3 else 0.0
@@ -379,7 +415,7 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
     core = False
     if COH:
         sx, sy, sz, core = R.cohesive_sum(sx, sy, sz, s[4], s[5], s[6], s[7], s[8], s[9], s[10], tb.cohesion[0])
-    vectorial = p.vectorial != 0
+    vectorial = p.vectorial
     if EXT:
         si = R.species_of(pid, tb.bounds)
         eta, epsilon, turn, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 2], tb.species[si, 3]
@@ -397,7 +433,7 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
     else:
         wx, wy, wz = R.update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step, pid, h,
                                  tb.field[0], tb.field[1], tb.field[2])
-    if p.backward != 0:
+    if p.backward:
         mx, my, mz = wx, wy, wz
     else:
         mx, my, mz = ux, uy, uz
@@ -456,24 +492,27 @@ def add_moments(acc, wx, wy, wz, pid, bounds, d, NEM):
 
 
 @functools.lru_cache(maxsize=None)
-def build(features: Features) -> types.SimpleNamespace:
-    """The step kernels for ``features``: ``lines`` and ``search``, each called as
+def build(features: Features, dim: int) -> types.SimpleNamespace:
+    """The step kernels for ``features`` in ``dim`` dimensions: ``lines`` and ``search``,
+    each called as
     ``kernel(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step,
     seed, params, partial, threads, tables)``: one step from the sorted arrays into
     ``new_*`` (same slots), each slot's new cell into ``cell``, unit ``u``'s moment sums
-    into ``partial[u]``; ``params`` is a :data:`~flocking.backends.features.STEP` record
-    (an array of one), ``tables`` the model's :class:`~flocking.backends.features.Tables`;
+    into ``partial[u]``; ``params`` is the model's :class:`~flocking.backends.features.Step`,
+    ``tables`` its :class:`~flocking.backends.features.Tables`;
     ``threads`` only splits the work. Units of work: :func:`flocking.backends.cells.work_units`
     (mode 0 for ``lines``, 1 for ``search``)."""
     EXT, CPL, NEM, CONE, COH = features
+    DIM = dim
     WEIGHTED = features.weighted
     ROWS = 4 if not COH else 12  # rows of the per-slot sums of ``lines``
 
     @numba.njit(cache=True, parallel=True)
     def lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
               threads, tb):
-        d, n = pos.shape
-        r2 = params[0].r2
+        d = DIM  # compiled for one dimension: the other's code is not there
+        n = pos.shape[1]
+        r2 = params.r2
         inv = nc / box
         shifts = box * (1.0 + tb.walls) if EXT else box  # 2L across a wall: a wrapped copy is never within R
         nx = nc[0]
@@ -551,7 +590,7 @@ def build(features: Features) -> types.SimpleNamespace:
                         s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0, s[3], s[4], s[5],
                              s[6], s[7], s[8], s[9], s[10])
                     wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
-                                         params, nc, inv, box, tb, EXT, WEIGHTED, COH)
+                                         params, nc, inv, box, tb, d, EXT, WEIGHTED, COH)
                     if EXT:
                         add_moments(acc, wx, wy, wz, ids[i], tb.bounds, d, NEM)
                     else:
@@ -568,9 +607,10 @@ def build(features: Features) -> types.SimpleNamespace:
     @numba.njit(cache=True, parallel=True)
     def search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
                threads, tb):
-        d, n = pos.shape
-        k = params[0].k
-        r2 = params[0].r2
+        d = DIM  # compiled for one dimension: the other's code is not there
+        n = pos.shape[1]
+        k = params.k
+        r2 = params.r2
         inv = nc / box
         ncells = start.shape[0] - 1
         nblocks = cells.work_units(nc, n, 1)
@@ -598,13 +638,13 @@ def build(features: Features) -> types.SimpleNamespace:
                     for i in range(max(start[c], s0), min(start[c + 1], s1)):
                         si = R.species_of(ids[i], tb.bounds) if CPL else 0
                         if k == 0:
-                            s = metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, EXT, CPL, NEM, CONE,
+                            s = metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, d, EXT, CPL, NEM, CONE,
                                             COH, WEIGHTED)
                         else:
-                            s = nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, CPL, NEM,
+                            s = nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, d, CPL, NEM,
                                              CONE, COH, WEIGHTED)
                         wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
-                                             params, nc, inv, box, tb, EXT, WEIGHTED, COH)
+                                             params, nc, inv, box, tb, d, EXT, WEIGHTED, COH)
                         if EXT:
                             add_moments(acc, wx, wy, wz, ids[i], tb.bounds, d, NEM)
                         else:

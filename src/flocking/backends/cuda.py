@@ -79,7 +79,8 @@ MAX_REPLICAS = 2**20
 
 def require_cuda():
     """numba.cuda, once it is known to have a device (or the simulator)."""
-    hint = "backend: 'cuda' needs an NVIDIA GPU with numba-cuda (pip install 'flocking[cuda]'"
+    hint = "backend: 'cuda' needs an NVIDIA GPU with numba-cuda (pip install '.[cuda]' in flocking's source " \
+           "folder"
     try:
         from numba import cuda
     except ImportError as err:  # pragma: no cover - numba ships numba.cuda or numba-cuda does

@@ -118,20 +118,27 @@ def tables(model: Model) -> Tables:
                   species=species, coupling=coupling, field=field, cone=cone, cohesion=cohesion)
 
 
-#: The scalar parameters of a step, as the CPU kernels read them: one record, by name.
-STEP = np.dtype([("r2", np.float64), ("eta", np.float64), ("epsilon", np.float64), ("dt", np.float64),
-                 ("k", np.int64), ("delay", np.int64), ("vectorial", np.int64), ("backward", np.int64)], align=True)
+class Step(typing.NamedTuple):
+    """The scalar parameters of a step, as the CPU kernels read them (by name, in
+    registers): ``R^2``, the noise, the alignment, ``dt``, ``k`` (0 for metric
+    neighbours), the delay, vectorial noise, the backward update."""
+
+    r2: float
+    eta: float
+    epsilon: float
+    dt: float
+    k: int
+    delay: int
+    vectorial: bool
+    backward: bool
 
 
-def step_record(model: Model) -> np.ndarray:
-    """The :data:`STEP` record of ``model`` (an array of one; ``k`` is 0 for metric
-    neighbours).
+def step(model: Model) -> Step:
+    """The :class:`Step` of ``model``.
 
-    >>> step_record(Model(n=10, box=5.0, delay=3))[0]["delay"]
-    np.int64(3)
+    >>> step(Model(n=10, box=5.0, delay=3)).delay
+    3
     """
-    record = np.zeros(1, dtype=STEP)
-    record[0] = (model.radius**2, model.noise, model.alignment, model.dt,
-                 model.k if model.neighbours == "topological" else 0, model.delay,
-                 model.noise_type == "vectorial", model.update == "backward")
-    return record
+    return Step(float(model.radius**2), float(model.noise), float(model.alignment), float(model.dt),
+                int(model.k if model.neighbours == "topological" else 0), int(model.delay),
+                model.noise_type == "vectorial", model.update == "backward")

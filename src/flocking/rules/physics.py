@@ -151,12 +151,12 @@ def cohesion_term(dx, dy, dz, d2, inside, rc2, re, ra, slope):
     count)`` as seven numbers. A particle at distance 0 (itself, or one on top of it)
     adds nothing. No branch: the CPU kernels sum it in SIMD lanes."""
     r = math.sqrt(d2)
-    inv = ONE / r if r > ZERO else ZERO
+    inv = ONE / (r if r > ZERO else ONE)  # divided whatever r is: a select, not a branch
     core = inside & (d2 < rc2) & (r > ZERO)
     pull = inside & (d2 >= rc2)
     f = (r - re) * slope if r < ra else ONE
-    g = f * inv if pull else ZERO
-    h = inv if core else ZERO
+    g = (f * inv) * (ONE if pull else ZERO)
+    h = inv * (ONE if core else ZERO)
     return g * dx, g * dy, g * dz, -(h * dx), -(h * dy), -(h * dz), ONE if core else ZERO
 
 

@@ -23,7 +23,7 @@ def require(*modules: str) -> None:
             importlib.import_module(name)
         except ImportError:
             raise ParameterError(f"sweep: needs the package {name!r}; "
-                                 f"pip install 'flocking[sweep]'") from None
+                                 f"pip install '.[sweep]' in flocking's source folder") from None
 
 
 __all__ = ["Point", "SweepSpec", "point_seed", "require"]

@@ -28,7 +28,10 @@ FORMATS = (".mp4", ".gif")
 CRF = 18
 
 
-def _open(trajectory):
+def open_run(trajectory):
+    """``(trajectory, owned)``: an open :class:`flocking.Trajectory` as it is (not owned),
+    or the one of a path to a GSD file or a run folder, opened here (owned: the caller
+    closes it)."""
     from ..trajectory import Trajectory
 
     if isinstance(trajectory, Trajectory):
@@ -90,7 +93,7 @@ def write_movie(trajectory, output, *, theme="dark", style="auto", fps=20.0, dpi
         raise ParameterError(f"fps: must be in (0, 240] (got {fps!r})")
     get_theme(theme)
     check_color(color)
-    traj, owned = _open(trajectory)
+    traj, owned = open_run(trajectory)
     try:
         indices = select_frames(len(traj), start, stop, stride)
         first = traj[indices[0]]
@@ -181,7 +184,7 @@ def write_picture(trajectory, output, *, frame=-1, theme="dark", style="auto", d
     dpi = house.check_dpi(dpi) or house.DPI
     get_theme(theme)
     check_color(color)
-    traj, owned = _open(trajectory)
+    traj, owned = open_run(trajectory)
     try:
         if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) \
                 or not -len(traj) <= frame < len(traj):
@@ -219,7 +222,7 @@ def write_plots(run_dir: str, theme: str = "dark", dpi=None, fmt: str = "png", s
     from .timeseries import polar_order_figure
 
     check_picture_options(theme, dpi, fmt, color)
-    traj, _ = _open(run_dir)
+    traj, _ = open_run(run_dir)
     written = []
     with traj:
         last = traj[-1]

@@ -22,7 +22,7 @@ import tempfile
 
 import numpy as np
 
-from .movie import _open, encode_mp4, fix_density_scale, select_frames, write_movie
+from .movie import encode_mp4, fix_density_scale, open_run, select_frames, write_movie
 from .render import Scene
 
 #: x264 quality of notebook videos: smaller files than movies (CRF 18), still sharp enough.
@@ -61,7 +61,7 @@ class HTMLAnimation:
 def trajectory_mp4(trajectory, max_frames=60, fps=10.0, theme="dark", size=5.0, dpi=80,
                    start=None, stop=None, stride=None, crf=NOTEBOOK_CRF, **options) -> bytes:
     """H.264 bytes of up to ``max_frames`` evenly spaced frames (or every ``stride``-th)."""
-    traj, owned = _open(trajectory)
+    traj, owned = open_run(trajectory)
     try:
         if stride is None:
             span = len(select_frames(len(traj), start, stop, 1))

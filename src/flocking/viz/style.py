@@ -60,7 +60,7 @@ LABELS = {
     "corr": "$C(r)$",
     "mean_count": r"$\langle n\rangle$",
     "count_std": r"$\Delta n$",
-    "lag": r"lag $\tau$",
+    "lag": r"lag $\Delta t$",
     "msd": r"$\langle|\Delta\mathbf{r}|^2\rangle$ (units of $R^2$)",
     "box_size": r"box size $\ell$ (units of $R$)",
     "boxes": r"occupied boxes $N(\ell)$",

@@ -10,7 +10,7 @@ which does not shrink with the length of the run. The legend says which it is.
 >>> fig = polar_order_figure(np.arange(400), phi, theme="light")
 >>> print(fig.axes[0].get_legend().get_texts()[0].get_text())
 second half: $\\langle\\varphi\\rangle$ = 0.8982 $\\pm$ 0.0014
-(error of the mean; autocorrelation time $\\tau$ = 0.5 steps)
+(error of the mean; autocorrelation time $\\tau_\\mathrm{int}$ = 0.5 steps)
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def polar_order_figure(steps, phi, parameters=None, dim=2, n=0, box_lengths=(1, 
         spacing = float(np.median(np.diff(steps))) if len(steps) > 1 else 1.0
         tau = op.tau * spacing
         label = (fr"second half: $\langle\varphi\rangle$ = {with_error(op.mean, op.mean_error)}"
-                 "\n" fr"(error of the mean; autocorrelation time $\tau$ = {tau:.3g} steps)")
+                 "\n" fr"(error of the mean; autocorrelation time $\tau_\mathrm{{int}}$ = {tau:.3g} steps)")
         if not op.equilibrated:
             label += f"\nnot equilibrated: halves differ by {abs(op.drift):.0f} errors"
         ax.fill_between([window[0], window[-1]], op.mean - op.mean_error, op.mean + op.mean_error,
