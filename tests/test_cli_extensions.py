@@ -1,5 +1,5 @@
-"""`flocking run --obstacle`, `--species-b` and `--cross-coupling`: the common extension
-cases as options, what they become in the model, and their one-line refusals."""
+"""`flocking run --obstacle`, `--species-b`, `--cross-coupling` and `--cohesion`: the common
+extension cases as options, what they become in the model, and their one-line refusals."""
 
 import re
 import tomllib
@@ -107,12 +107,30 @@ def test_the_options_replace_what_a_config_file_says(tmp_path):
     (["--species-b", "0.5", "--cross-coupling", "2000"], "--cross-coupling: "),
     (["--species-b", "0.5", "--cross-coupling", "nan"], "--cross-coupling: "),
     (["--species-b", "half"], "--species-b: 'half' is not a valid float"),
+    (["--cohesion", "-1"], "--cohesion: must be in [0, 1000] (got -1.0)"),
+    (["--cohesion", "1", "--cohesion-radii", "0.5,0.2,0.8"], "--cohesion-radii: must be three lengths r_c, r_e, r_a "
+                                                             "with 0 <= r_c < r_e < r_a"),
+    (["--cohesion", "1", "--cohesion-radii", "0.2,0.5"], "--cohesion-radii: must be three lengths"),
 ])
 def test_refusals_are_one_line_naming_the_option(tmp_path, args, message):
     out = tmp_path / "o"
     result = run(*args, "--out", out, check=False)
     assert result.exit_code == 2 and result.output.startswith(f"Error: {message}"), result.output
     assert len(result.output.splitlines()) == 1 and not out.exists()
+
+
+def test_cohesion_and_its_radii_reach_the_model_and_the_config(tmp_path):
+    out = tmp_path / "c"
+    run("--n", 200, "--box", 10, "--cohesion", 1.5, "--cohesion-radii", "0.1,0.4,0.7", "--steps", 3, "--out", out,
+        "-q", "--no-plots")
+    config = tomllib.loads((out / "config.toml").read_text())
+    assert config["cohesion"] == 1.5 and config["cohesion_radii"] == [0.1, 0.4, 0.7]
+    model = RunConfig.from_dict(RunConfig.load(out / "config.toml")).model
+    assert model.extensions == ("cohesion",) and model.cohesion_radii == (0.1, 0.4, 0.7)
+    # the radii default to Gregoire and Chate's, in units of R, written out resolved
+    run("--n", 200, "--box", 10, "--radius", 2, "--cohesion", 1, "--steps", 1, "--out", tmp_path / "d", "-q",
+        "--no-plots")
+    assert tomllib.loads((tmp_path / "d" / "config.toml").read_text())["cohesion_radii"] == [0.4, 1.0, 1.6]
 
 
 def test_cross_coupling_refused_for_a_config_file_with_three_species(tmp_path):

@@ -21,7 +21,7 @@ CONCEPTS = {
     "theme": ("--theme", options.OneOf, ("dark", "light"), "dark"),
     "size": ("--size", options.OneOf, ("column", "page", "slide"), "page"),
     "resolution": ("--dpi", click.FLOAT, None, None),
-    "colour": ("--color", options.OneOf, ("auto", "heading", "species"), "auto"),
+    "colour": ("--color", options.OneOf, ("auto", "heading", "species", "deviation"), "auto"),
     "backend": ("--backend", options.OneOf, ("cpu", "cuda", "reference"), None),
     "quiet": ("--quiet", click.BOOL, None, False),
 }

@@ -18,7 +18,9 @@ from flocking.play import server  # noqa: E402
 
 SRC = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, "src"))
 
-#: what a page's controls switch on, each alone (as parameters of a small model)
+#: what a page's controls switch on, each alone, that the warm-up covers (as parameters of a
+#: small model; combinations of kernels' features compile when first asked for, and the page
+#: says so: tests/test_play_browser.py)
 PAGE = [
     {"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]},
     {"boundary": "wall,periodic"},
@@ -26,17 +28,16 @@ PAGE = [
     {"boundary": "wall"},
     {"species": [{"name": "A", "fraction": 0.5}, {"name": "B", "fraction": 0.5, "speed": 1.0, "noise": 2.0}],
      "coupling": [[1.0, -1.0], [-1.0, 1.0]]},
+    {"species": [{"name": "A", "fraction": 0.5}, {"name": "B", "fraction": 0.5, "speed": 1.0, "noise": 2.0}]},
     {"vision": 1.0},
     {"chirality": 0.2},
+    {"cohesion": 2.0},
     {"neighbours": "topological", "k": 7},
     {"neighbours": "topological", "k": 7, "obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]},
-    {"neighbours": "topological", "k": 7, "vision": 1.0},
     {"noise_type": "vectorial", "noise": 0.5},
     {"delay": 5},
     {"dim": 3},
     {"dim": 3, "boundary": "periodic,periodic,wall"},
-    {"dim": 3, "neighbours": "topological", "k": 7},
-    {"dim": 3, "neighbours": "topological", "k": 7, "boundary": "wall"},
 ]
 
 #: a fresh process: warm up, then count the signatures every numba function of flocking
@@ -48,9 +49,11 @@ from flocking import Model, Simulation
 from flocking.play.server import warm_kernels
 
 def signatures():
-    return {f"{name}.{attr}": len(obj.signatures) for name, module in list(sys.modules.items())
-            if name.startswith("flocking") for attr, obj in list(vars(module).items())
-            if isinstance(obj, CPUDispatcher)}
+    # every numba function of flocking, the kernels built per feature set (closures) included
+    import gc
+    return {f"{obj.py_func.__module__}.{obj.py_func.__qualname__}#{id(obj)}": len(obj.signatures)
+            for obj in gc.get_objects() if isinstance(obj, CPUDispatcher)
+            and (obj.py_func.__module__ or "").startswith("flocking")}
 
 cold = signatures()
 warm_kernels()
@@ -74,10 +77,15 @@ def test_after_the_warm_up_no_setting_of_the_page_compiles():
     assert grew == {}
 
 
-def test_the_warm_up_covers_plain_and_extended_kernels_in_2d_and_3d():
-    models = server.warm_models()
-    kinds = {(m.dim, m.neighbours, m.extended) for m in models}
-    assert kinds == {(d, near, ext) for d in (2, 3) for near in ("metric", "topological") for ext in (False, True)}
+def test_the_warm_up_covers_each_feature_of_the_page_and_plain_and_extended_kernels():
+    from flocking.backends.cpu import kernel_name
+    from flocking.backends.features import features
+
+    kinds = {(m.dim, kernel_name(m), features(m)) for m in server.warm_models()}
+    assert {(f.coupling, f.cone, f.cohesion) for d, k, f in kinds if (d, k) == (2, "lines")} == \
+        {(False, False, False), (True, False, False), (False, True, False), (False, False, True)}
+    assert {(d, k, f.extended) for d, k, f in kinds} == {(2, "lines", False), (2, "lines", True), (2, "search", False),
+                                                         (2, "search", True), (3, "lines", False), (3, "lines", True)}
 
 
 def test_the_app_warms_up_once_per_process_in_a_background_thread():

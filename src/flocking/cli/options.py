@@ -12,7 +12,8 @@ format of pictures        ``--format``        png, svg, pdf                   pn
 theme                     ``--theme``         dark, light                     dark
 size of figures           ``--size``          column, page, slide             page
 resolution                ``--dpi``           10 to 1000 pixels per inch      200
-colour of particles       ``--color``         auto, heading, species          auto
+colour of particles       ``--color``         auto, heading, species,         auto
+                                              deviation
 backend                   ``--backend``       cpu, cuda, reference            cpu
 pictures or not           ``--plots``         ``--plots/--no-plots``          --plots
 less output               ``--quiet``, ``-q`` a flag                          off
@@ -39,7 +40,7 @@ from ..model import ParameterError
 THEMES = ("dark", "light")
 SIZES = ("column", "page", "slide")
 FORMATS = ("png", "svg", "pdf")
-COLORS = ("auto", "heading", "species")
+COLORS = ("auto", "heading", "species", "deviation")
 BACKENDS = ("cpu", "cuda", "reference")
 #: the resolutions a picture may have (:func:`flocking.viz.style.check_dpi`), pixels per inch
 DPI_RANGE = (10, 1000)
@@ -101,10 +102,11 @@ def picture_format(func):
 
 
 def color(func):
-    """``--color auto|heading|species``."""
+    """``--color auto|heading|species|deviation``."""
     return click.option("--color", type=OneOf(COLORS), default="auto", show_default=True,
-                        help="Colour particles by heading or species (auto: species when the run has "
-                             "several).")(func)
+                        help="Colour particles by heading, species, or (3D) the local heading's deviation "
+                             "from the flock's (auto: species when the run has several, else heading in 2D "
+                             "and deviation in 3D).")(func)
 
 
 def backend(help: str, default: str = "cpu"):

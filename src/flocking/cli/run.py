@@ -47,11 +47,13 @@ MODEL_OPTIONS = [
     ("--chirality", click.FLOAT, "Turn omega (radians per unit time, counter-clockwise) every step, 2D only."),
     ("--field", str, "Direction g of an external field such as 1,0 (any length)."),
     ("--field-strength", click.FLOAT, "Strength h >= 0 of the field: S += h n g."),
+    ("--cohesion", click.FLOAT, "Strength beta in [0, 1000] of the neighbours' attraction-repulsion (Gregoire-Chate)."),
+    ("--cohesion-radii", str, "Hard core, equilibrium and full attraction r_c,r_e,r_a such as 0.2,0.5,0.8."),
 ]
 
 
 #: Defaults shown in words rather than as the value.
-SHOWN = {"vision": "pi, all around", "field": "none"}
+SHOWN = {"vision": "pi, all around", "field": "none", "cohesion_radii": "0.2,0.5,0.8 x R"}
 
 
 def shown_default(name: str, defaults: dict | None = None) -> str:

@@ -208,17 +208,28 @@ def same_origin(origin: str | None, host: str | None) -> bool:
         return False
 
 
+#: what a page switches on, each alone, that needs a kernel of its own
+#: (:class:`flocking.backends.features.Features`): walls, obstacles, chirality, a second
+#: species with the same coupling run in the extended kernel; anti-aligning species, a vision
+#: cone and cohesion each in one compiled for them
+PAGE_FEATURES = ({"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]},
+                 {"species": [{"name": "A", "fraction": 0.5}, {"name": "B", "fraction": 0.5}],
+                  "coupling": [[1.0, -1.0], [-1.0, 1.0]]},
+                 {"vision": 1.0}, {"cohesion": 1.0})
+
+
 def warm_models() -> list[Model]:
-    """Small models whose first steps compile every kernel a page can switch to: plain and
-    extended (an obstacle in 2D, a wall in 3D), metric and topological neighbours, in 2D
-    and 3D. The other options (delay, vectorial noise, species, vision cones, ...) run in
-    one of these kernels."""
-    models = []
-    for dim in (2, 3):
-        for neighbours in ({"neighbours": "metric"}, {"neighbours": "topological", "k": 7}):
-            base = {"dim": dim, "n": 64, "box": 8.0, **neighbours}
-            extended = {"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]} if dim == 2 else {"boundary": "wall"}
-            models += [Model(**base), Model(**base, **extended)]
+    """Small models whose first steps compile the kernels a page most often switches to:
+    in 2D with metric neighbours, the plain model and each of :data:`PAGE_FEATURES`; with
+    topological neighbours and in 3D, the plain and the extended model. The other options
+    (delay, vectorial noise, walls, chirality, ...) run in one of these kernels; a
+    combination (a vision cone and cohesion together, say) compiles when first asked for,
+    and the page says so while it does."""
+    small = {"n": 64, "box": 8.0}
+    models = [Model(**small)] + [Model(**small, **extra) for extra in PAGE_FEATURES]
+    for dim, neighbours in ((2, {"neighbours": "topological", "k": 7}), (3, {})):
+        base = {"dim": dim, **small, **neighbours}
+        models += [Model(**base), Model(**base, boundary="wall")]
     return models
 
 

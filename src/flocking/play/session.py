@@ -68,6 +68,8 @@ azimuth and a ``z`` byte per particle in 3D.
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import json
 import logging
 import math
@@ -75,6 +77,7 @@ import struct
 import sys
 import threading
 import time
+import typing
 from typing import Any
 
 import numba
@@ -112,13 +115,34 @@ MAX_CONFIGS = 16
 #: short to pay for waking threads, and far slower when other programs keep the cores busy
 SERIAL_BELOW = 50_000
 
+def parallel_threads_are_safe() -> bool:
+    """Whether numba has a threading layer that lets threads run parallel kernels at once
+    (OpenMP or TBB). Without either (a machine without libgomp), it falls back to its
+    workqueue layer, which aborts the process when two tabs step at the same time.
+
+    >>> isinstance(parallel_threads_are_safe(), bool)
+    True
+    """
+    for layer in ("omppool", "tbbpool"):
+        try:
+            importlib.import_module(f"numba.np.ufunc.{layer}")
+            return True
+        except ImportError:
+            continue
+    return False
+
+
+#: held around every step where the threading layer cannot run two at once (tabs then take
+#: turns); a lock that is never contended otherwise
+STEP_LOCK: typing.ContextManager = threading.Lock() if not parallel_threads_are_safe() else contextlib.nullcontext()
+
 #: obstacles a page may drop: each costs every particle a test every step
 MAX_OBSTACLES = 32
 
 #: the model parameters a page may set (the box follows from n and density)
 PARAMS = ("dim", "n", "density", "speed", "speeds", "neighbours", "radius", "k", "noise",
           "noise_type", "alignment", "delay", "dt", "update", "seed",
-          "boundary", "obstacles", "species", "coupling", "vision", "chirality")
+          "boundary", "obstacles", "species", "coupling", "vision", "chirality", "cohesion")
 #: message type -> {field: (Python types, required)}
 MESSAGES: dict[str, dict[str, tuple[tuple[type, ...], bool]]] = {
     "set": {"params": ((dict,), True)},
@@ -133,7 +157,7 @@ MESSAGES: dict[str, dict[str, tuple[tuple[type, ...], bool]]] = {
 INITS = ("random", "aligned")
 #: the parameter a refusal names, first of those that changed: for a slow step, for memory
 SLOW = ("radius", "k", "n", "density", "dim", "neighbours", "obstacles", "species", "coupling", "vision",
-        "chirality", "boundary")
+        "cohesion", "chirality", "boundary")
 LARGE = ("n", "delay", "dim", "density", "speeds")
 
 HEADER = struct.Struct("<4sBBHIdf3f")
@@ -508,7 +532,8 @@ class Session:
         for _ in range(steps):
             if self.closed or (done and self.pending()):
                 break
-            phi = float(self.sim.backend.advance(1)[0])
+            with STEP_LOCK:
+                phi = float(self.sim.backend.advance(1)[0])
             self._step += 1
             done += 1
             if not math.isfinite(phi):

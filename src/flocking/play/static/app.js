@@ -170,7 +170,7 @@ for (const radio of document.querySelectorAll('input[type="radio"]')) {
   });
 }
 
-// -- the extensions: walls, obstacles, a second species, vision and chirality --------------
+// -- the extensions: walls, obstacles, a second species, vision, chirality and cohesion -----
 
 // walls: one switch per axis (z only in 3D); the server takes "periodic,wall,..."
 function boundaryParam() {
@@ -279,6 +279,7 @@ function syncExtensions(reply) {
   const vision = m.vision ?? Math.PI;
   set("vision", Math.round((vision * 180) / Math.PI));
   set("chirality", m.chirality ?? 0);
+  set("cohesion", m.cohesion ?? 0);
   for (const el of document.querySelectorAll(".two-d")) el.classList.toggle("hidden", three);
   for (const el of document.querySelectorAll(".three-d")) el.classList.toggle("hidden", !three);
   // what each folded section holds, readable while it is closed
@@ -287,7 +288,8 @@ function syncExtensions(reply) {
                  obstacles.length ? `${obstacles.length} obstacle${obstacles.length > 1 ? "s" : ""}` : ""];
   $("space-state").textContent = space.filter(Boolean).join(" · ") || "none";
   $("second-state").textContent = two ? `${reply.species_counts[1]} of ${m.n}` : "off";
-  const sight = [vision < Math.PI ? `${Math.round((vision * 180) / Math.PI)}°` : "", m.chirality ? `ω ${m.chirality}` : ""];
+  const sight = [vision < Math.PI ? `${Math.round((vision * 180) / Math.PI)}°` : "", m.chirality ? `ω ${m.chirality}` : "",
+                 m.cohesion ? `β ${m.cohesion}` : ""];
   $("sight-state").textContent = sight.filter(Boolean).join(" · ") || "all round";
   renderer.scene = { walls, obstacles, counts: two ? reply.species_counts : null };
   $("legend").classList.toggle("hidden", !two);
