@@ -7,6 +7,10 @@ per case, the best and the median of each tree's runs and their ratios::
 
     git worktree add /tmp/before HEAD~1
     python benchmarks/compare_trees.py /tmp/before/src src --rounds 3
+    python benchmarks/compare_trees.py /tmp/before/src src --rounds 3 --extensions
+
+(``--extensions``: the cases of ``bench_extensions.py``, 2D, N = 1e5, instead of the plain
+model's.)
 
 A ratio of 1.00 means equal; on the project's 2-core machine, runs of one tree differ by
 about 10 per cent, so only a ratio outside [0.9, 1.1] in every round means something.
@@ -22,6 +26,8 @@ import subprocess
 import sys
 import tempfile
 
+from bench_extensions import cases as extension_cases
+
 #: (label, Model keyword arguments); sizes that take a second or two a case
 CASES = [
     ("2D metric N=1e5", dict(dim=2, n=100_000, density=2.0, noise=1.0)),
@@ -31,6 +37,10 @@ CASES = [
     ("3D metric N=1e5", dict(dim=3, n=100_000, density=1.0, noise=1.0)),
     ("3D metric N=1e6", dict(dim=3, n=1_000_000, density=1.0, noise=1.0)),
 ]
+
+#: the extensions of ``bench_extensions.py``, one at a time and combined, 2D, N = 1e5
+EXTENSION_CASES = [(label, dict(dim=2, n=100_000, density=2.0, noise=1.0, **extra))
+                   for label, extra in extension_cases(100_000, 2.0).items()]
 
 #: what each child process runs: compile, then time ``steps`` steps ``repeats`` times
 CHILD = """
@@ -53,10 +63,10 @@ print(json.dumps(out))
 """
 
 
-def measure(src: str, cache: str) -> dict[str, float]:
-    """Particle-steps per second of every case with the package in ``src``."""
+def measure(src: str, cache: str, cases: list) -> dict[str, float]:
+    """Particle-steps per second of every case of ``cases`` with the package in ``src``."""
     env = dict(os.environ, NUMBA_CACHE_DIR=cache)
-    result = subprocess.run([sys.executable, "-c", CHILD, os.path.abspath(src), json.dumps(CASES)],
+    result = subprocess.run([sys.executable, "-c", CHILD, os.path.abspath(src), json.dumps(cases)],
                             env=env, capture_output=True, text=True, check=True)
     return json.loads(result.stdout.strip().splitlines()[-1])
 
@@ -66,18 +76,20 @@ def main(argv=None) -> None:
     parser.add_argument("before", help="the src folder of the tree to compare against")
     parser.add_argument("after", help="the src folder of the changed tree")
     parser.add_argument("--rounds", type=int, default=3, help="alternations of the two trees")
+    parser.add_argument("--extensions", action="store_true", help="the extensions' cases, not the plain model's")
     args = parser.parse_args(argv)
+    cases = EXTENSION_CASES if args.extensions else CASES
     runs = {"before": {}, "after": {}}
     with tempfile.TemporaryDirectory() as scratch:
         for r in range(args.rounds):
             for name in ("before", "after"):
-                rates = measure(getattr(args, name), os.path.join(scratch, name))
+                rates = measure(getattr(args, name), os.path.join(scratch, name), cases)
                 print(f"round {r + 1} {name}: " + ", ".join(f"{k} {v:.3g}" for k, v in rates.items()), flush=True)
                 for k, v in rates.items():
                     runs[name].setdefault(k, []).append(v)
     print("\n| case | before, best (particle-steps/s) | after, best | after / before: best | median |\n"
           "| --- | ---: | ---: | ---: | ---: |")
-    for label, _ in CASES:
+    for label, _ in cases:
         b, a = runs["before"][label], runs["after"][label]
         print(f"| {label} | {max(b):.3g} | {max(a):.3g} | {max(a) / max(b):.2f} | "
               f"{statistics.median(a) / statistics.median(b):.2f} |")

@@ -132,7 +132,7 @@ def test_run_3d_topological(tmp_path):
     (["--theme", "neon"], "--theme: must be one of dark, light (got 'neon')"),
     (["--dpi", "5"], "--dpi: must be in [10, 1000] (got 5.0)"),
     (["--format", "jpg"], "--format: must be one of png, svg, pdf (got 'jpg')"),
-    (["--color", "red"], "--color: must be one of auto, heading, species (got 'red')"),
+    (["--color", "red"], "--color: must be one of auto, heading, species, deviation (got 'red')"),
     (["--config", "missing.toml"], "--config: cannot read"),
 ])
 def test_bad_input_is_refused_before_anything_is_written(tmp_path, args, message):
@@ -240,7 +240,8 @@ def test_help_shows_every_default():
                "movie": "--no-movie; with --resume, as the run began", "noise_scale": "radians",
                "vision": "pi, all around", "field": "none", "boundary": "periodic",
                "theme": "dark", "dpi": "200", "fmt": "png", "color": "auto", "obstacles": "none",
-               "species_b": "none, one species", "cross_coupling": "1"}
+               "species_b": "none, one species", "cross_coupling": "1",
+               "cohesion_radii": "0.2,0.5,0.8 x R"}
     plain = flocking.Model()  # config.toml leaves out extensions that are off: their defaults are Model's
     assert plain.vision == math.pi and plain.field is None
     assert used["n"] == 2048 and used["box"] == [32.0, 32.0]  # density 2 x 32 x 32

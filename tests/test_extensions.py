@@ -95,8 +95,19 @@ def assert_same_state(a, b, model, tol=1e-12):
     assert np.abs(a.headings - b.headings).max() < tol
 
 
-@pytest.mark.parametrize("dim", [2, 3])
-@pytest.mark.parametrize("name", EXTENSIONS)
+#: the 3D cases of the default suite: each other 3D case compiles kernels of its own (20 to
+#: 50 s on 2 cores), so they run with the slow tests (CI's second stage, .ci/run)
+DEFAULT_3D = ("walls", "topological", "cohesion-everything")
+
+
+def every_case():
+    """Each case of :data:`EXTENSIONS` in 2D, then in 3D (slow unless in :data:`DEFAULT_3D`)."""
+    return [pytest.param(name, dim, id=f"{name}-{dim}",
+                         marks=() if dim == 2 or name in DEFAULT_3D else pytest.mark.slow)
+            for dim in (2, 3) for name in EXTENSIONS]
+
+
+@pytest.mark.parametrize(("name", "dim"), every_case())
 def test_cpu_matches_reference_step_by_step(dim, name):
     if dim == 3 and name == "chirality":
         pytest.skip("chirality is a turn in the plane: 2D only (refused in 3D)")

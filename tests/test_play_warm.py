@@ -49,7 +49,7 @@ from flocking import Model, Simulation
 from flocking.play.server import warm_kernels
 
 def signatures():
-    # every numba function of flocking, the kernels built per feature set (closures) included
+    # every numba function of flocking, the kernels compiled per feature set included
     import gc
     return {f"{obj.py_func.__module__}.{obj.py_func.__qualname__}#{id(obj)}": len(obj.signatures)
             for obj in gc.get_objects() if isinstance(obj, CPUDispatcher)

@@ -305,7 +305,7 @@ def test_results_without_within_run_errors_are_summarised_with_standard_errors()
 
 
 def test_a_missing_extra_names_the_install_command():
-    with pytest.raises(ParameterError, match=r"pip install 'flocking\[sweep\]'"):
+    with pytest.raises(ParameterError, match=r"pip install '\.\[sweep\]' in flocking's source folder"):
         require("flocking_no_such_module")
 
 

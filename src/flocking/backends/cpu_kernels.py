@@ -1,9 +1,10 @@
 """The CPU backend's step: one family of numba kernels for the plain model and every extension.
 
 :func:`build` compiles the two kernels of a step for one value of
-:class:`~flocking.backends.features.Features` (what the model switches on), as closures
-over its flags, so an extension that is off is not in the code at all: ``build(Features())``
-is the plain model's step, and each extension adds only its own work. The kernels are
+:class:`~flocking.backends.features.Features` (what the model switches on) and a dimension,
+from this module's text with the flags as globals, so an extension that is off is not in
+the code at all: ``build(Features(), 2)`` is the plain model's step in 2D, and each
+extension adds only its own work. The kernels are
 thin loops; the physics is :mod:`flocking.rules` compiled for the CPU (``R``).
 
 ``lines``
@@ -50,6 +51,12 @@ from .cells import ALL, U1
 from .features import Features
 
 R = compile_rules("cpu")
+
+# The flags of a variant: what it compiles in (Features) and its dimension. The functions
+# that read them are plain Python here; build() compiles a copy of them per variant with the
+# variant's values in place of these.
+EXT = CPL = NEM = CONE = COH = WEIGHTED = False
+DIM = 2
 
 
 # -- the plain model's neighbour sums -----------------------------------------------------
@@ -133,12 +140,11 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
 
 
 # -- weighted neighbour sums (pair weights, cohesion) ---------------------------------------
-# Flags (CPL, NEM, CONE, COH) are the kernel's compile-time constants: these functions are
-# inlined into it, and what a flag leaves out is folded away.
+# These read the flags (CPL, NEM, CONE, COH) as globals: compiled per variant by build() and
+# inlined into its kernels, what a flag leaves out is never compiled.
 
 
-@numba.njit(cache=True, inline="always")
-def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE, COH):
+def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh):
     """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour`: it
     counts within ``R`` and ``j <= last``; the coupling of the particle's species to the
     candidate's is buffer row ``jr``. Returns heading (2), count, pull (2), push (2),
@@ -151,8 +157,7 @@ def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL, NEM, CONE, COH
     return t[0], t[1], t[3], t[4], t[5], t[7], t[8], t[10]
 
 
-@numba.njit(cache=True, inline="always")
-def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE, COH):
+def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh):
     """:func:`pair_2d` in 3D: heading (3), count, pull (3), push (3), core count."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
@@ -166,8 +171,7 @@ def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, C
 # tuples, the lanes were not packed into SIMD registers (three times slower per candidate).
 
 
-@numba.njit(cache=True, inline="always")
-def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o, CPL, NEM, CONE, COH):
+def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o):
     """As :func:`reduce_2d` (the particle itself included, four lanes), each candidate
     weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count, and with
     cohesion the pull (2), the push (2) and the core count."""
@@ -185,14 +189,12 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o, CP
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                p0, q0, w0, pc0, pd0, pe0, pf0, pg0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh, CPL,
-                                                              NEM, CONE, COH)
-                p1, q1, w1, pc1, pd1, pe1, pf1, pg1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, coh,
-                                                              CPL, NEM, CONE, COH)
+                p0, q0, w0, pc0, pd0, pe0, pf0, pg0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh)
+                p1, q1, w1, pc1, pd1, pe1, pf1, pg1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, coh)
                 p2, q2, w2, pc2, pd2, pe2, pf2, pg2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr,
-                                                              cone, coh, CPL, NEM, CONE, COH)
+                                                              cone, coh)
                 p3, q3, w3, pc3, pd3, pe3, pf3, pg3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr,
-                                                              cone, coh, CPL, NEM, CONE, COH)
+                                                              cone, coh)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
@@ -214,8 +216,7 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o, CP
             out[7, q] = (g0 + g1) + (g2 + g3)
 
 
-@numba.njit(cache=True, inline="always")
-def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out, o, CPL, NEM, CONE, COH):
+def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out, o):
     """:func:`wreduce_2d` in 3D; rows: heading sum (3), count, pull (3), push (3), core count."""
     for i in range(i0, i1):
         xi = x[i]
@@ -234,12 +235,10 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                t0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE, COH)
-                t1 = pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE, COH)
-                t2 = pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE,
-                             COH)
-                t3 = pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh, CPL, NEM, CONE,
-                             COH)
+                t0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh)
+                t1 = pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh)
+                t2 = pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh)
+                t3 = pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh)
                 a0, a1, a2, a3 = a0 + t0[0], a1 + t1[0], a2 + t2[0], a3 + t3[0]
                 b0, b1, b2, b3 = b0 + t0[1], b1 + t1[1], b2 + t2[1], b3 + t3[1]
                 c0, c1, c2, c3 = c0 + t0[2], c1 + t1[2], c2 + t2[2], c3 + t3[2]
@@ -270,15 +269,15 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out
 # -- the sums of the search kernel --------------------------------------------------------
 
 
-@numba.njit(cache=True, inline="always")
-def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, d, CPL, NEM, CONE, COH):
+def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, cone):
     """Neighbour candidate ``j`` of slot ``i`` at ``r = (dx, dy, dz)`` by
     :func:`flocking.rules.physics.neighbour` (``si``: the species of ``i``; ``d``: the
     dimension, a constant of the kernel)."""
+    d = DIM
     coh = tb.cohesion
     coupling = tb.coupling[si, R.species_of(ids[j], tb.bounds)] if CPL else 1.0
     return R.neighbour(d, dx, dy, dz, d2, inside, head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, head[0, j],
-                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, CONE, tb.cone[0], COH, coh[1],
+                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, cone, tb.cone[0], COH, coh[1],
                        coh[2], coh[3], coh[4])
 
 
@@ -289,11 +288,11 @@ def plus_counted(s, t):
             s[8] + t[8], s[9] + t[9], s[10] + t[10])
 
 
-@numba.njit(cache=True, inline="always")
-def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, d, EXT, CPL, NEM, CONE, COH, WEIGHTED):
+def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
     """Slot ``i``'s sums over the cells around its own cell ``c``, each cell once, every
     pair by minimum image, none across a wall: ``(S (3), count, pull (3), push (3), core
     count)``; ``S`` and the count include the particle itself unless ``WEIGHTED``."""
+    d = DIM
     o0, n0 = cells.axis_cells(c % nc[0], nc[0])
     o1, n1 = cells.axis_cells((c // nc[0]) % nc[1], nc[1])
     o2, n2 = 0, 1
@@ -327,7 +326,7 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, d, EXT, CPL, N
                     if d == 3:
                         dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
                         d2 += dz * dz
-                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, d, CPL, NEM, CONE, COH)
+                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, CONE)
                     if t[3] != 0.0:  # only what counts is added, as the reference adds it
                         s = plus_counted(s, t)
     if WEIGHTED:  # the count includes the particle itself
@@ -335,10 +334,10 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, d, EXT, CPL, N
     return s
 
 
-@numba.njit(cache=True, inline="always")
-def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, d, CPL, NEM, CONE, COH, WEIGHTED):
+def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs):
     """As :func:`metric_sums`, over the ``k`` nearest others (in rank order, nearest
     first; the particle itself first unless ``WEIGHTED``)."""
+    d = DIM
     nc2 = nc[2] if d == 3 else 1
     l2 = box[2] if d == 3 else 1.0
     h2 = tb.half[2] if d == 3 else np.inf
@@ -356,19 +355,18 @@ def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, d,
             dy = R.minimum_image(pos[1, j] - pos[1, i], box[1], tb.half[1])
             if d == 3:
                 dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
-        s = plus_counted(s, pair_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si, d, CPL, NEM, False,
-                                       COH))
+        s = plus_counted(s, pair_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si, False))
     return (s[0], s[1], s[2], float(found + 1), s[4], s[5], s[6], s[7], s[8], s[9], s[10])
 
 
 # -- one particle's step ------------------------------------------------------------------
 
 
-@numba.njit(cache=True, inline="always")
-def remember(ring, slot, pid, s, d, COH):
+def remember(ring, slot, pid, s):
     """The delay ring's row of particle ``pid`` holds the sums of ``delay`` steps ago (the
     others' heading sum, ``1 +`` their count, and with cohesion the pull, the push and the
     core count): return them in :func:`metric_sums`' layout and store today's ``s``."""
+    d = DIM
     old = (ring[slot, pid, 0], ring[slot, pid, 1], ring[slot, pid, 2] if d == 3 else 0.0, ring[slot, pid, d])
     ring[slot, pid, 0] = s[0]
     ring[slot, pid, 1] = s[1]
@@ -388,15 +386,14 @@ def remember(ring, slot, pid, s, d, COH):
     return (old[0], old[1], old[2], old[3], extra[0], extra[1], extra[2], extra[3], extra[4], extra[5], extra[6])
 
 
-@numba.njit(cache=True, inline="always")
-def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed, p, nc, inv, box, tb,
-            d, EXT, WEIGHTED, COH):
+def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed, p, nc, inv, box, tb):
     """Slot ``i``'s new heading and position into ``new_*[:, i]`` and its new cell into
     ``cell[i]``, from its sums ``s`` (:func:`metric_sums`' layout: with ``WEIGHTED``, the
     others' weighed headings, else the sum with itself; ``p``: the step's parameters);
     returns the new heading (``wz``
     is 0 in 2D). In the order of docs/model.md: the delay, cohesion, the update (field,
     noise, alignment, chirality), the move, the walls, the obstacles."""
+    d = DIM
     n = pos.shape[1]
     pid = ids[i]
     ux, uy = head[0, i], head[1, i]
@@ -407,7 +404,7 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
         cells.prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
         if not WEIGHTED:  # the ring holds the others' sum
             s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
-        s = remember(ring, slot, pid, s, d, COH)
+        s = remember(ring, slot, pid, s)
         s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
     elif WEIGHTED:
         s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
@@ -467,10 +464,10 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
     return wx, wy, wz
 
 
-@numba.njit(cache=True, inline="always")
-def add_moments(acc, wx, wy, wz, pid, bounds, d, NEM):
+def add_moments(acc, wx, wy, wz, pid, bounds):
     """Slot's new heading into the moment sums ``acc``: its species' ``sum u``, then the
     nematic products (:mod:`flocking.observables`)."""
+    d = DIM
     o = R.species_of(pid, bounds) * d
     acc[o] += wx
     acc[o + 1] += wy
@@ -491,6 +488,177 @@ def add_moments(acc, wx, wy, wz, pid, bounds, d, NEM):
 # -- the kernels --------------------------------------------------------------------------
 
 
+def lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
+          threads, tb):
+    n = pos.shape[1]
+    nt = max(1, min(threads, cells.work_units(nc, n, 0)))
+    # per slot its species and its coupling from each species: a unit's buffer holds the
+    # latter as rows, so a weighed sum reads one row instead of a look-up per pair
+    tag = np.empty(n if CPL else 0)
+    cols = np.empty((tb.coupling.shape[0] if CPL else 0, n))
+    if CPL:
+        for i in numba.prange(n):
+            s = R.species_of(ids[i], tb.bounds)
+            tag[i] = s
+            for a in range(cols.shape[0]):
+                cols[a, i] = tb.coupling[a, s]
+    counter = np.zeros(1, dtype=np.int64)
+    for t in numba.prange(nt):
+        line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params,
+                   partial, tb, tag, cols, counter)
+
+
+def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params,
+               partial, tb, tag, cols, counter):
+    """One thread's share of :func:`lines`: units of work taken from ``counter`` until none
+    is left (``tag``, ``cols``: the species and the coupling columns of the slots). Inlined
+    into the parallel loop: called from it as a function of its own, it ran at 0.6 to 0.85 of
+    the speed (2D, N = 1e5)."""
+    d = DIM
+    n = pos.shape[1]
+    r2 = params.r2
+    inv = nc / box
+    shifts = box * (1.0 + tb.walls) if EXT else box  # 2L across a wall: a wrapped copy is never within R
+    nx = nc[0]
+    nseg = (nx + cells.SEGMENT - 1) // cells.SEGMENT
+    nunits = cells.work_units(nc, n, 0)
+    # views taken once per thread: a view in the hot loop costs an atomic refcount
+    x, y, z = pos[0], pos[1], pos[d - 1]
+    hx, hy, hz = head[0], head[1], head[d - 1]
+    buf = np.empty((2 * d + cols.shape[0], 4096))
+    rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
+    ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
+    out = np.empty((4 if not COH else 12, 16))  # rows of the per-slot sums
+    acc = np.zeros(partial.shape[1])
+    while True:
+        # units go to whichever thread is free: balanced when particles cluster or
+        # when another program holds a core; a unit's result never depends on who
+        u = cells.fetch_add(counter)
+        if u >= nunits:
+            break
+        if CPL:
+            line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, cols, start, nc,
+                                                               shifts, buf, rows, out, d)
+        else:
+            line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
+                                                               shifts, buf, rows, out, d)
+        # first the sums of every particle of the segment, then the updates in one
+        # loop: its iterations are independent, so the processor overlaps their long
+        # chains of dependent operations (it cannot across the reductions)
+        for cx in range(c0, c1):
+            c = line * nx + cx
+            cells.candidate_ranges(cx, nx, start, rows, ranges)
+            if not WEIGHTED and d == 2:
+                reduce_2d(buf, ranges, x, y, start[c], start[c + 1], r2, out, start[c] - s0)
+            elif not WEIGHTED:
+                reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
+            elif d == 2:
+                wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0],
+                           tb.cohesion, out, start[c] - s0)
+            else:
+                wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0],
+                           tb.cohesion, out, start[c] - s0)
+        px = 0.0
+        py = 0.0
+        pz = 0.0
+        if EXT:
+            acc[:] = 0.0
+        # unsigned slots: no negative-index wraparound on every access
+        for i in range(np.uint64(max(s0, 0)), np.uint64(max(s1, 0))):
+            q = np.int64(i) - s0
+            sz = out[2, q] if d == 3 else 0.0
+            s = (out[0, q], out[1, q], sz, out[d, q], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            if COH:
+                o = d + 1
+                s = (s[0], s[1], s[2], s[3], out[o, q], out[o + 1, q], out[o + 2, q] if d == 3 else 0.0,
+                     out[o + d, q], out[o + d + 1, q], out[o + d + 2, q] if d == 3 else 0.0,
+                     out[o + 2 * d, q])
+            if WEIGHTED:
+                # the sums include the particle itself, with its own species'
+                # coupling, in its cone, of its own sense: take it out
+                w = tb.coupling[int(tag[i]), int(tag[i])] if CPL else 1.0
+                s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0, s[3], s[4], s[5],
+                     s[6], s[7], s[8], s[9], s[10])
+            wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
+                                 params, nc, inv, box, tb)
+            if EXT:
+                add_moments(acc, wx, wy, wz, ids[i], tb.bounds)
+            else:
+                px += wx
+                py += wy
+                pz += wz
+        if EXT:
+            partial[u, :] = acc
+        else:
+            partial[u, 0] = px
+            partial[u, 1] = py
+            partial[u, 2] = pz
+
+
+def search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
+           threads, tb):
+    nt = max(1, min(threads, cells.work_units(nc, pos.shape[1], 1)))
+    counter = np.zeros(1, dtype=np.int64)
+    for t in numba.prange(nt):
+        search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params,
+                      partial, tb, counter)
+
+
+def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params,
+                  partial, tb, counter):
+    """One thread's share of :func:`search`: blocks of slots taken from ``counter`` until
+    none is left."""
+    n = pos.shape[1]
+    k = params.k
+    r2 = params.r2
+    inv = nc / box
+    ncells = start.shape[0] - 1
+    nblocks = cells.work_units(nc, n, 1)
+    bd = np.empty(max(k, 1))
+    bi = np.empty(max(k, 1), dtype=np.int64)
+    bs = np.empty(max(k, 1), dtype=np.int64)
+    acc = np.zeros(partial.shape[1])
+    while True:
+        b = cells.fetch_add(counter)
+        if b >= nblocks:
+            break
+        s0 = b * cells.BLOCK
+        s1 = min(n, s0 + cells.BLOCK)
+        c = np.searchsorted(start, s0, side="right") - 1
+        px = 0.0
+        py = 0.0
+        pz = 0.0
+        if EXT:
+            acc[:] = 0.0
+        while c < ncells and start[c] < s1:
+            for i in range(max(start[c], s0), min(start[c + 1], s1)):
+                si = R.species_of(ids[i], tb.bounds) if CPL else 0
+                if k == 0:
+                    s = metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si)
+                else:
+                    s = nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs)
+                wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
+                                     params, nc, inv, box, tb)
+                if EXT:
+                    add_moments(acc, wx, wy, wz, ids[i], tb.bounds)
+                else:
+                    px += wx
+                    py += wy
+                    pz += wz
+            c += 1
+        if EXT:
+            partial[b, :] = acc
+        else:
+            partial[b, 0] = px
+            partial[b, 1] = py
+            partial[b, 2] = pz
+
+
+#: the functions compiled once per variant, callees first: each reads the flags as globals
+VARIANT = ("pair_2d", "pair_3d", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums", "nearest_sums",
+           "remember", "advance", "add_moments", "line_units", "search_blocks")
+
+
 @functools.lru_cache(maxsize=None)
 def build(features: Features, dim: int) -> types.SimpleNamespace:
     """The step kernels for ``features`` in ``dim`` dimensions: ``lines`` and ``search``,
@@ -501,163 +669,30 @@ def build(features: Features, dim: int) -> types.SimpleNamespace:
     into ``partial[u]``; ``params`` is the model's :class:`~flocking.backends.features.Step`,
     ``tables`` its :class:`~flocking.backends.features.Tables`;
     ``threads`` only splits the work. Units of work: :func:`flocking.backends.cells.work_units`
-    (mode 0 for ``lines``, 1 for ``search``)."""
-    EXT, CPL, NEM, CONE, COH = features
-    DIM = dim
-    WEIGHTED = features.weighted
-    ROWS = 4 if not COH else 12  # rows of the per-slot sums of ``lines``
+    (mode 0 for ``lines``, 1 for ``search``).
 
-    @numba.njit(cache=True, parallel=True)
-    def lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
-              threads, tb):
-        d = DIM  # compiled for one dimension: the other's code is not there
-        n = pos.shape[1]
-        r2 = params.r2
-        inv = nc / box
-        shifts = box * (1.0 + tb.walls) if EXT else box  # 2L across a wall: a wrapped copy is never within R
-        nx = nc[0]
-        nseg = (nx + cells.SEGMENT - 1) // cells.SEGMENT
-        nunits = cells.work_units(nc, n, 0)
-        nt = max(1, min(threads, nunits))
-        # per slot its species and its coupling from each species: a unit's buffer holds the
-        # latter as rows, so a weighed sum reads one row instead of a look-up per pair
-        tag = np.empty(n if CPL else 0)
-        cols = np.empty((tb.coupling.shape[0] if CPL else 0, n))
-        if CPL:
-            for i in numba.prange(n):
-                s = R.species_of(ids[i], tb.bounds)
-                tag[i] = s
-                for a in range(cols.shape[0]):
-                    cols[a, i] = tb.coupling[a, s]
-        counter = np.zeros(1, dtype=np.int64)
-        width = partial.shape[1]
-        for t in numba.prange(nt):
-            # views taken once per thread: a view in the hot loop costs an atomic refcount
-            x, y, z = pos[0], pos[1], pos[d - 1]
-            hx, hy, hz = head[0], head[1], head[d - 1]
-            buf = np.empty((2 * d + cols.shape[0], 4096))
-            rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
-            ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
-            out = np.empty((ROWS, 16))
-            acc = np.zeros(width)
-            while True:
-                # units go to whichever thread is free: balanced when particles cluster or
-                # when another program holds a core; a unit's result never depends on who
-                u = cells.fetch_add(counter)
-                if u >= nunits:
-                    break
-                if CPL:
-                    line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, cols, start, nc,
-                                                                       shifts, buf, rows, out, d)
-                else:
-                    line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
-                                                                       shifts, buf, rows, out, d)
-                # first the sums of every particle of the segment, then the updates in one
-                # loop: its iterations are independent, so the processor overlaps their long
-                # chains of dependent operations (it cannot across the reductions)
-                for cx in range(c0, c1):
-                    c = line * nx + cx
-                    cells.candidate_ranges(cx, nx, start, rows, ranges)
-                    if not WEIGHTED and d == 2:
-                        reduce_2d(buf, ranges, x, y, start[c], start[c + 1], r2, out, start[c] - s0)
-                    elif not WEIGHTED:
-                        reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
-                    elif d == 2:
-                        wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0],
-                                   tb.cohesion, out, start[c] - s0, CPL, NEM, CONE, COH)
-                    else:
-                        wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0],
-                                   tb.cohesion, out, start[c] - s0, CPL, NEM, CONE, COH)
-                px = 0.0
-                py = 0.0
-                pz = 0.0
-                if EXT:
-                    acc[:] = 0.0
-                # unsigned slots: no negative-index wraparound on every access
-                for i in range(np.uint64(max(s0, 0)), np.uint64(max(s1, 0))):
-                    q = np.int64(i) - s0
-                    sz = out[2, q] if d == 3 else 0.0
-                    s = (out[0, q], out[1, q], sz, out[d, q], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-                    if COH:
-                        o = d + 1
-                        s = (s[0], s[1], s[2], s[3], out[o, q], out[o + 1, q], out[o + 2, q] if d == 3 else 0.0,
-                             out[o + d, q], out[o + d + 1, q], out[o + d + 2, q] if d == 3 else 0.0,
-                             out[o + 2 * d, q])
-                    if WEIGHTED:
-                        # the sums include the particle itself, with its own species'
-                        # coupling, in its cone, of its own sense: take it out
-                        w = tb.coupling[int(tag[i]), int(tag[i])] if CPL else 1.0
-                        s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0, s[3], s[4], s[5],
-                             s[6], s[7], s[8], s[9], s[10])
-                    wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
-                                         params, nc, inv, box, tb, d, EXT, WEIGHTED, COH)
-                    if EXT:
-                        add_moments(acc, wx, wy, wz, ids[i], tb.bounds, d, NEM)
-                    else:
-                        px += wx
-                        py += wy
-                        pz += wz
-                if EXT:
-                    partial[u, :] = acc
-                else:
-                    partial[u, 0] = px
-                    partial[u, 1] = py
-                    partial[u, 2] = pz
+    The functions of :data:`VARIANT` and the two kernels are compiled from their text here
+    with the variant's flags as globals (as :func:`flocking.rules.compile` binds the
+    rules' constants): numba folds a branch on a global before it inlines what the branch
+    calls, so code that a flag leaves out is never compiled, which keeps a variant's
+    compilation short. The kernels are cached on disk under a name of their own.
+    """
+    flags = dict(EXT=features.extended, CPL=features.coupling, NEM=features.nematic, CONE=features.cone,
+                 COH=features.cohesion, WEIGHTED=features.weighted, DIM=dim)
+    namespace = {**globals(), **flags}
+    for name in VARIANT:
+        namespace[name] = numba.njit(inline="always")(rebind(globals()[name], namespace))
+    tag = f"{dim}d_" + "".join("1" if on else "0" for on in features)
+    kernels = {name: numba.njit(cache=True, parallel=True)(rebind(globals()[name], namespace, f"{name}_{tag}"))
+               for name in ("lines", "search")}
+    return types.SimpleNamespace(**kernels, features=features)
 
-    @numba.njit(cache=True, parallel=True)
-    def search(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,
-               threads, tb):
-        d = DIM  # compiled for one dimension: the other's code is not there
-        n = pos.shape[1]
-        k = params.k
-        r2 = params.r2
-        inv = nc / box
-        ncells = start.shape[0] - 1
-        nblocks = cells.work_units(nc, n, 1)
-        nt = max(1, min(threads, nblocks))
-        counter = np.zeros(1, dtype=np.int64)
-        width = partial.shape[1]
-        for t in numba.prange(nt):
-            bd = np.empty(max(k, 1))
-            bi = np.empty(max(k, 1), dtype=np.int64)
-            bs = np.empty(max(k, 1), dtype=np.int64)
-            acc = np.zeros(width)
-            while True:
-                b = cells.fetch_add(counter)
-                if b >= nblocks:
-                    break
-                s0 = b * cells.BLOCK
-                s1 = min(n, s0 + cells.BLOCK)
-                c = np.searchsorted(start, s0, side="right") - 1
-                px = 0.0
-                py = 0.0
-                pz = 0.0
-                if EXT:
-                    acc[:] = 0.0
-                while c < ncells and start[c] < s1:
-                    for i in range(max(start[c], s0), min(start[c + 1], s1)):
-                        si = R.species_of(ids[i], tb.bounds) if CPL else 0
-                        if k == 0:
-                            s = metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si, d, EXT, CPL, NEM, CONE,
-                                            COH, WEIGHTED)
-                        else:
-                            s = nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs, d, CPL, NEM,
-                                             CONE, COH, WEIGHTED)
-                        wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
-                                             params, nc, inv, box, tb, d, EXT, WEIGHTED, COH)
-                        if EXT:
-                            add_moments(acc, wx, wy, wz, ids[i], tb.bounds, d, NEM)
-                        else:
-                            px += wx
-                            py += wy
-                            pz += wz
-                    c += 1
-                if EXT:
-                    partial[b, :] = acc
-                else:
-                    partial[b, 0] = px
-                    partial[b, 1] = py
-                    partial[b, 2] = pz
 
-    return types.SimpleNamespace(lines=lines, search=search, features=features)
-
+def rebind(function, namespace: dict, qualname: str | None = None):
+    """``function`` with ``namespace`` as its globals (and ``qualname``, the name numba
+    caches it under)."""
+    out = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__,
+                             function.__closure__)
+    out.__qualname__ = qualname or function.__qualname__
+    out.__module__, out.__doc__ = function.__module__, function.__doc__
+    return out

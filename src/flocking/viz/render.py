@@ -604,7 +604,8 @@ class Scene:
         boxes = [ax.get_tightbbox(renderer) for ax in fig.axes]
         left, right = min(b.x0 for b in boxes), max(b.x1 for b in boxes)
         shift = ((fig.bbox.width - right) - left) / 2 / fig.bbox.width  # figure fraction
-        if abs(shift) > 0.005:
+        # a small shift is left alone, unless a label would be cut at an edge without it
+        if abs(shift) > 0.005 or left < 0 or right > fig.bbox.width:
             for ax in fig.axes:
                 p = ax.get_position()
                 ax.set_position([p.x0 + shift, p.y0, p.width, p.height])
