@@ -108,7 +108,7 @@ def main() -> None:
     ax.errorbar([0.1], [bm], yerr=[be], color=colours[2], marker="D", ms=5, lw=0, elinewidth=1.2, capsize=2.5,
                 label="largest cluster / $N$, $\\beta$ = 0")
     house.label_axes(ax, "vectorial noise $\\eta$", "mean over steps 10,000-20,000")
-    ax.set_ylim(0.0, 1.05)
+    ax.set_ylim(0.0, 1.4)  # room above the points for the legend
     house.legend(ax, t, loc="upper right")
     house.title(fig, "A cohesive flock holds together at low noise and dissolves at high noise",
                 f"$N$ = {BASE['n']} from a group of density {START_DENSITY:g} in a periodic box of side "
