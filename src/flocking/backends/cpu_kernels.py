@@ -46,6 +46,7 @@ import numba
 import numpy as np
 
 from ..rules import compile as compile_rules
+from ..rules import rebind
 from . import cells
 from .cells import ALL, U1
 from .features import Features
@@ -687,12 +688,3 @@ def build(features: Features, dim: int) -> types.SimpleNamespace:
                for name in ("lines", "search")}
     return types.SimpleNamespace(**kernels, features=features)
 
-
-def rebind(function, namespace: dict, qualname: str | None = None):
-    """``function`` with ``namespace`` as its globals (and ``qualname``, the name numba
-    caches it under)."""
-    out = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__,
-                             function.__closure__)
-    out.__qualname__ = qualname or function.__qualname__
-    out.__module__, out.__doc__ = function.__module__, function.__doc__
-    return out

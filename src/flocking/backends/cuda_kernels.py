@@ -52,6 +52,7 @@ import numpy as np
 from numba import cuda
 
 from ..rules import compile as compile_rules
+from ..rules import rebind
 from . import cuda_sort
 from .cuda_sort import KEY, LOW, Launch
 from .features import Features
@@ -107,12 +108,366 @@ def moment_width(dim: int, species: int, nematic: bool) -> int:
     return dim * species + ((2 if dim == 2 else 6) if nematic else 0)
 
 
+# The values of a build: the functions below read them as globals, and build() compiles
+# each with its own values in place of these (the float type's constants, the flags of
+# Features, the dimension, k, the moment width, the launch shape).
+R = None
+EXT = CPL = NEM = CONE = COH = False
+DIM, K, KA, NSPECIES, WIDTH, BLOCK, HSIZE, PMAX = 2, 0, 1, 1, 2, 256, 1, 1
+REAL, ZERO, ONE = np.float64, 0.0, 1.0
+
+
+# -- neighbours --------------------------------------------------------------------
+
+def x_ranges(cx, nc0, length):
+    """The x-cells of a row around ``cx`` as at most two contiguous runs of cells,
+    each with the shift that brings its particles to the nearest image (cells at
+    least R wide); fewer than 3 cells: one run of all, minimum image per pair."""
+    if nc0 < 3:
+        return 0, nc0, ZERO, 0, 0, ZERO
+    if cx == 0:
+        return 0, 2, ZERO, nc0 - 1, nc0, length
+    if cx == nc0 - 1:
+        return nc0 - 2, nc0, ZERO, 0, 1, -length
+    return cx - 1, cx + 2, ZERO, 0, 0, ZERO
+
+def row_of(c, oc, nc, length):
+    """Neighbour row ``oc`` (0..2, or 0..nc-1 when nc < 3) of cell ``c``: index and shift."""
+    if nc < 3:
+        return oc, ZERO
+    g = c - 1 + oc
+    if g < 0:
+        return g + nc, length
+    if g >= nc:
+        return g - nc, -length
+    return g, ZERO
+
+def plus(s, t):
+    return (s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3], s[4] + t[4], s[5] + t[5], s[6] + t[6],
+            s[7] + t[7], s[8] + t[8], s[9] + t[9], s[10] + t[10])
+
+def terms(i, j, dx, dy, dz, d2, inside, cur, tb, si, with_cone):
+    """Neighbour candidate ``j`` of slot ``i`` by :func:`flocking.rules.physics.neighbour`."""
+    head, coh = cur.head, tb.cohesion
+    coupling = tb.coupling[si, R.species_of(cur.ids[j], tb.bounds)] if CPL else ONE
+    uz = head[2, i] if DIM == 3 else ZERO
+    vz = head[2, j] if DIM == 3 else ZERO
+    return R.neighbour(DIM, dx, dy, dz, d2, inside, head[0, i], head[1, i], uz, head[0, j], head[1, j], vz,
+                       coupling, NEM, with_cone, tb.cone[0], COH, coh[1], coh[2], coh[3], coh[4])
+
+def metric(i, cb, cur, start, p, tb, si):
+    """The others within R of slot ``i`` (``cb``: the replica's first cell): weighed
+    heading sum (3), count, pull (3), push (3), core count. Wrapped cells are shifted
+    by ``s*`` (``2L`` across a wall: out of reach); an axis of fewer than three cells
+    takes the minimum image per pair."""
+    pos = cur.pos
+    nc0, nc1, nc2 = p.nc0, p.nc1, p.nc2
+    xi, yi = pos[0, i], pos[1, i]
+    zi = pos[2, i] if DIM == 3 else ZERO
+    cx, cy = R.cell_index(xi, p.inv0, nc0), R.cell_index(yi, p.inv1, nc1)
+    cz = R.cell_index(zi, p.inv2, nc2) if DIM == 3 else 0
+    a0, a1, sha, b0, b1, shb = x_ranges(cx, nc0, p.s0)
+    s = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
+    nz = R.lesser(nc2, 3) if DIM == 3 else 1
+    for oz in range(nz):
+        gz, shz = row_of(cz, oz, nc2, p.s2) if DIM == 3 else (0, ZERO)
+        for oy in range(R.lesser(nc1, 3)):
+            gy, shy = row_of(cy, oy, nc1, p.s1)
+            row = cb + (gz * nc1 + gy) * nc0
+            for run in range(2):
+                if run == 0:
+                    lo, hi, shx = start[row + a0], start[row + a1], sha
+                else:
+                    lo, hi, shx = start[row + b0], start[row + b1], shb
+                for j in range(lo, hi):
+                    if j == i:
+                        continue
+                    if nc0 >= 3:
+                        dx = (pos[0, j] - xi) - shx
+                    else:
+                        dx = R.minimum_image(pos[0, j] - xi, p.l0, p.h0)
+                    if nc1 >= 3:
+                        dy = (pos[1, j] - yi) - shy
+                    else:
+                        dy = R.minimum_image(pos[1, j] - yi, p.l1, p.h1)
+                    d2 = dx * dx + dy * dy
+                    dz = ZERO
+                    if DIM == 3:
+                        if nc2 >= 3:
+                            dz = (pos[2, j] - zi) - shz
+                        else:
+                            dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2)
+                        d2 += dz * dz
+                    t = terms(i, j, dx, dy, dz, d2, d2 < p.r2, cur, tb, si, CONE)
+                    if t[3] != ZERO:
+                        s = plus(s, t)
+    return s
+
+def nearest(i, cb, cur, start, p, tb, si, bd, bi, bs):
+    """The K nearest others of slot ``i``, as :func:`metric`."""
+    pos = cur.pos
+    xi, yi = pos[0, i], pos[1, i]
+    zi = pos[2, i] if DIM == 3 else ZERO
+    c0, c1 = R.cell_index(xi, p.inv0, p.nc0), R.cell_index(yi, p.inv1, p.nc1)
+    c2 = R.cell_index(zi, p.inv2, p.nc2) if DIM == 3 else 0
+    found = R.knearest(i, c0, c1, c2, cb, pos, cur.head, cur.ids, start, p.nc0, p.nc1, p.nc2, p.l0, p.l1, p.l2,
+                       p.h0, p.h1, p.h2, DIM, K, CONE, tb.cone[0], bd, bi, bs)
+    s = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
+    for q in range(K):
+        if q < found:
+            j = bs[q]
+            dx = R.minimum_image(pos[0, j] - xi, p.l0, p.h0)
+            dy = R.minimum_image(pos[1, j] - yi, p.l1, p.h1)
+            dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2) if DIM == 3 else ZERO
+            s = plus(s, terms(i, j, dx, dy, dz, bd[q], True, cur, tb, si, False))
+    return s
+
+# -- one step --------------------------------------------------------------------
+
+def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
+    """One step of a slot into ``new[:, slot]`` and its sort record into
+    ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the sums of tau
+    steps ago (the others' heading sum, ``1 +`` their count, with cohesion the pull,
+    the push and the core count: the cpu backend's layout) and receives today's.
+    With ``prime``, only fill every ring slot with today's sums (the initial state
+    stands in for the past)."""
+    p = P[0]
+    n = p.n
+    qb = (n + BLOCK - 1) // BLOCK
+    r = cuda.blockIdx.x // qb
+    local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
+    if local >= n:
+        return
+    i = r * n + local
+    cb = r * p.cells
+    pid = cur.ids[i]
+    si = R.species_of(pid, tb.bounds) if EXT else 0
+    if K == 0:
+        s = metric(i, cb, cur, start, p, tb, si)
+    else:
+        bd = cuda.local.array(KA, REAL)
+        bi = cuda.local.array(KA, np.int64)
+        bs = cuda.local.array(KA, np.int64)
+        s = nearest(i, cb, cur, start, p, tb, si, bd, bi, bs)
+    gid = r * n + pid
+    total = ONE + s[3]
+    s = (s[0], s[1], s[2], total, s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+    tau = rp[r].tau
+    if prime:
+        for slot in range(tau):
+            remember(ring, slot, gid, s)
+        return
+    if tau > 0:
+        s = remember(ring, clock[0] % tau, gid, s)
+    move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, clock[0])
+
+def remember(ring, slot, gid, s):
+    """Swap the sums ``s`` with those the ring holds for ``gid`` in ``slot``."""
+    W = ring.shape[2]
+    old = (ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, 2] if DIM == 3 else ZERO,
+           ring[slot, gid, DIM])
+    ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, DIM] = s[0], s[1], s[3]
+    if DIM == 3:
+        ring[slot, gid, 2] = s[2]
+    if not COH or W < 2 * DIM + 2:
+        return old[0], old[1], old[2], old[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10]
+    o = DIM + 1
+    extra = (ring[slot, gid, o], ring[slot, gid, o + 1], ring[slot, gid, o + 2] if DIM == 3 else ZERO,
+             ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1],
+             ring[slot, gid, o + DIM + 2] if DIM == 3 else ZERO, ring[slot, gid, o + 2 * DIM])
+    ring[slot, gid, o], ring[slot, gid, o + 1] = s[4], s[5]
+    ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1] = s[7], s[8]
+    if DIM == 3:
+        ring[slot, gid, o + 2], ring[slot, gid, o + DIM + 2] = s[6], s[9]
+    ring[slot, gid, o + 2 * DIM] = s[10]
+    return old[0], old[1], old[2], old[3], extra[0], extra[1], extra[2], extra[3], extra[4], extra[5], extra[6]
+
+def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
+    """From the others' sums ``s`` to slot ``i``'s new heading, position and sort
+    record: cohesion, the update, the move, the walls, the obstacles."""
+    pos, head = cur.pos, cur.head
+    ux, uy = head[0, i], head[1, i]
+    uz = head[2, i] if DIM == 3 else ZERO
+    sx, sy, sz, total = ux + s[0], uy + s[1], uz + s[2], s[3]
+    core = False
+    if COH:
+        sx, sy, sz, core = R.cohesive_sum(sx, sy, sz, s[4], s[5], s[6], s[7], s[8], s[9], s[10], tb.cohesion[0])
+    vectorial = p.vectorial != 0
+    if EXT:
+        eta, epsilon = tb.species[r, si, 0], tb.species[r, si, 1]
+        turn, h = tb.species[r, si, 2], tb.species[r, si, 3]
+        if core:  # an infinite repulsion drowns the field and vectorial noise
+            h = ZERO
+            if vectorial:
+                eta = ZERO
+    else:
+        eta, epsilon, turn, h = rp[r].eta, rp[r].epsilon, ZERO, ZERO
+    if p.speeds != 0:
+        ds = cur.spd[i] * p.dt
+        new.spd[i] = cur.spd[i]
+    else:
+        ds = rp[r].v0 * p.dt
+    seed, step_, upid = rp[r].seed, np.uint64(t), np.uint64(pid)
+    if DIM == 2:
+        wx, wy = R.update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step_, upid, h, tb.field[0],
+                             tb.field[1], turn)
+        wz = ZERO
+    else:
+        wx, wy, wz = R.update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step_, upid, h,
+                                 tb.field[0], tb.field[1], tb.field[2])
+    mx, my, mz = (wx, wy, wz) if p.backward != 0 else (ux, uy, uz)
+    x, y = pos[0, i] + ds * mx, pos[1, i] + ds * my
+    z = pos[2, i] + ds * mz if DIM == 3 else ZERO
+    if EXT:
+        x, wx = R.fold(x, wx, p.l0, p.w0 != 0)
+        y, wy = R.fold(y, wy, p.l1, p.w1 != 0)
+        if DIM == 3:
+            z, wz = R.fold(z, wz, p.l2, p.w2 != 0)
+        for o in range(p.obstacles):
+            ob = tb.obstacles
+            if DIM == 2:
+                x, y, wx, wy = R.push_out_2d(x, y, wx, wy, ob[o, 0], ob[o, 1], ob[o, 2], p.l0, p.l1, p.h0, p.h1,
+                                             p.w0 != 0, p.w1 != 0)
+            else:
+                x, y, z, wx, wy, wz = R.push_out_3d(x, y, z, wx, wy, wz, ob[o, 0], ob[o, 1], ob[o, 2], ob[o, 3],
+                                                    p.l0, p.l1, p.l2, p.h0, p.h1, p.h2, p.w0 != 0, p.w1 != 0,
+                                                    p.w2 != 0)
+    else:
+        x, y = R.wrap(x, p.l0), R.wrap(y, p.l1)
+        if DIM == 3:
+            z = R.wrap(z, p.l2)
+    new.head[0, i], new.head[1, i] = wx, wy
+    new.pos[0, i], new.pos[1, i] = x, y
+    c = R.cell_index(y, p.inv1, p.nc1) * p.nc0 + R.cell_index(x, p.inv0, p.nc0)
+    if DIM == 3:
+        new.head[2, i], new.pos[2, i] = wz, z
+        c += R.cell_index(z, p.inv2, p.nc2) * p.nc1 * p.nc0
+    new.ids[i] = pid
+    rec[gid] = (np.uint64(cb + c) << KEY) | np.uint64(i)
+
+def cells(pos, P, rec):
+    """Sort records of positions in global-id order (a state being loaded)."""
+    p = P[0]
+    n = p.n
+    qb = (n + BLOCK - 1) // BLOCK
+    r = cuda.blockIdx.x // qb
+    local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
+    if local >= n:
+        return
+    i = r * n + local
+    c = R.cell_index(pos[1, i], p.inv1, p.nc1) * p.nc0 + R.cell_index(pos[0, i], p.inv0, p.nc0)
+    if DIM == 3:
+        c += R.cell_index(pos[2, i], p.inv2, p.nc2) * p.nc1 * p.nc0
+    rec[i] = (np.uint64(r * p.cells + c) << KEY) | np.uint64(i)
+
+# -- back into slots, cell starts, moments ------------------------------------------
+
+def block_sum(buf, tid):
+    """Tree sum of the shared ``buf[:, :BLOCK]`` into ``buf[:, 0]``, in a fixed order;
+    every thread of the block calls it."""
+    cuda.syncthreads()
+    stride = BLOCK // 2
+    while stride > 0:
+        if tid < stride:
+            for a in range(WIDTH):
+                buf[a, tid] += buf[a, tid + stride]
+        cuda.syncthreads()
+        stride //= 2
+
+def gather(srt, new, P, cur, start, partial, bounds):
+    """Slot ``s`` takes the particle the sort put there (``srt[s]`` holds the slot it
+    came from); each cell's start is found by a binary search in the replica's sorted
+    records; each block's moment sums (float64) go to ``partial``: each species'
+    heading sum, then the nematic products (as :func:`flocking.observables.moment_sums`)."""
+    buf = cuda.shared.array((WIDTH, BLOCK), np.float64)
+    p = P[0]
+    n, ncells = p.n, p.cells
+    qb = (n + BLOCK - 1) // BLOCK
+    r = cuda.blockIdx.x // qb
+    tid = cuda.threadIdx.x
+    local = (cuda.blockIdx.x % qb) * BLOCK + tid
+    for a in range(WIDTH):
+        buf[a, tid] = 0.0
+    if local < n:
+        s = r * n + local
+        o = np.int64(srt[s] & LOW)
+        row = R.species_of(new.ids[o], bounds) * DIM if NSPECIES > 1 else 0
+        for a in range(DIM):
+            cur.pos[a, s] = new.pos[a, o]
+            cur.head[a, s] = new.head[a, o]
+            buf[row + a, tid] = np.float64(new.head[a, o])
+        if NEM:
+            wx, wy = np.float64(new.head[0, o]), np.float64(new.head[1, o])
+            row = NSPECIES * DIM
+            if DIM == 2:
+                buf[row, tid], buf[row + 1, tid] = R.nematic_2d(wx, wy)
+            else:
+                m = R.nematic_3d(wx, wy, np.float64(new.head[2, o]))
+                for e in range(6):
+                    buf[row + e, tid] = m[e]
+        cur.ids[s] = new.ids[o]
+        if p.speeds != 0:
+            cur.spd[s] = new.spd[o]
+    if local < ncells:  # cells never outnumber particles
+        key = np.uint64(r * ncells + local)
+        lo, hi = r * n, r * n + n
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if (srt[mid] >> KEY) < key:
+                lo = mid + 1
+            else:
+                hi = mid
+        start[r * ncells + local] = lo
+    block_sum(buf, tid)
+    if tid == 0:
+        for a in range(WIDTH):
+            partial[a, cuda.blockIdx.x] = buf[a, 0]
+
+def finish(partial, P, phi, clock, hist, tiles, tick):
+    """Block ``r``: replica ``r``'s block sums, in a fixed order, into row
+    ``clock[0] % rows`` of ``phi`` (with ``tick``). Block 0 also readies the sort's
+    counters for the next sort."""
+    buf = cuda.shared.array((WIDTH, BLOCK), np.float64)
+    p = P[0]
+    qb = (p.n + BLOCK - 1) // BLOCK
+    r = cuda.blockIdx.x
+    tid = cuda.threadIdx.x
+    if r == 0:
+        for e in range(tid, HSIZE, BLOCK):
+            hist[e] = 0
+        if tid < PMAX:
+            tiles[tid] = 0
+        if tid == 0:
+            clock[1] += 1
+    if tick:
+        for a in range(WIDTH):
+            acc = 0.0
+            for b in range(tid, qb, BLOCK):
+                acc += partial[a, r * qb + b]
+            buf[a, tid] = acc
+        block_sum(buf, tid)
+        if tid == 0:
+            row = clock[0] % p.rows
+            for a in range(WIDTH):
+                phi[r, row, a] = buf[a, 0]
+
+
+#: the device functions of a build, callees first
+DEVICE = ('x_ranges', 'row_of', 'plus', 'terms', 'metric', 'nearest', 'remember', 'move', 'block_sum')
+#: the kernels of a build
+KERNELS = ('step', 'cells', 'gather', 'finish')
+
+
 @functools.lru_cache(maxsize=None)
 def build(precision: str, dim: int, k: int, launch: Launch, features: Features = Features(),
           species: int = 1) -> types.SimpleNamespace:
     """The kernels for one precision (``"float64"``/``"float32"``), dimension, ``k`` (0:
     metric), launch shape (:class:`~flocking.backends.cuda_sort.Launch`), ``features``
-    (what is compiled in) and number of ``species`` (the width of the moment sums)."""
+    (what is compiled in) and number of ``species`` (the width of the moment sums).
+
+    The functions of :data:`DEVICE` and :data:`KERNELS` are compiled from their text with
+    these values as their globals (as :func:`flocking.rules.compile` binds the rules'
+    constants), so what ``features`` leaves off is not compiled."""
     real = np.float64 if precision == "float64" else np.float32
     R = compile_rules("cuda", real)
     EXT, CPL, NEM, CONE, COH = features
@@ -122,353 +477,14 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     sort = cuda_sort.build(launch)
     HSIZE, PMAX = sort.hist_size, sort.max_passes
     ZERO, ONE = real(0.0), real(1.0)
-
-    # -- neighbours --------------------------------------------------------------------
-
-    @cuda.jit(device=True)
-    def x_ranges(cx, nc0, length):
-        """The x-cells of a row around ``cx`` as at most two contiguous runs of cells,
-        each with the shift that brings its particles to the nearest image (cells at
-        least R wide); fewer than 3 cells: one run of all, minimum image per pair."""
-        if nc0 < 3:
-            return 0, nc0, ZERO, 0, 0, ZERO
-        if cx == 0:
-            return 0, 2, ZERO, nc0 - 1, nc0, length
-        if cx == nc0 - 1:
-            return nc0 - 2, nc0, ZERO, 0, 1, -length
-        return cx - 1, cx + 2, ZERO, 0, 0, ZERO
-
-    @cuda.jit(device=True)
-    def row_of(c, oc, nc, length):
-        """Neighbour row ``oc`` (0..2, or 0..nc-1 when nc < 3) of cell ``c``: index and shift."""
-        if nc < 3:
-            return oc, ZERO
-        g = c - 1 + oc
-        if g < 0:
-            return g + nc, length
-        if g >= nc:
-            return g - nc, -length
-        return g, ZERO
-
-    @cuda.jit(device=True)
-    def plus(s, t):
-        return (s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3], s[4] + t[4], s[5] + t[5], s[6] + t[6],
-                s[7] + t[7], s[8] + t[8], s[9] + t[9], s[10] + t[10])
-
-    @cuda.jit(device=True)
-    def terms(i, j, dx, dy, dz, d2, inside, cur, tb, si, with_cone):
-        """Neighbour candidate ``j`` of slot ``i`` by :func:`flocking.rules.physics.neighbour`."""
-        head, coh = cur.head, tb.cohesion
-        coupling = tb.coupling[si, R.species_of(cur.ids[j], tb.bounds)] if CPL else ONE
-        uz = head[2, i] if DIM == 3 else ZERO
-        vz = head[2, j] if DIM == 3 else ZERO
-        return R.neighbour(DIM, dx, dy, dz, d2, inside, head[0, i], head[1, i], uz, head[0, j], head[1, j], vz,
-                           coupling, NEM, with_cone, tb.cone[0], COH, coh[1], coh[2], coh[3], coh[4])
-
-    @cuda.jit(device=True)
-    def metric(i, cb, cur, start, p, tb, si):
-        """The others within R of slot ``i`` (``cb``: the replica's first cell): weighed
-        heading sum (3), count, pull (3), push (3), core count. Wrapped cells are shifted
-        by ``s*`` (``2L`` across a wall: out of reach); an axis of fewer than three cells
-        takes the minimum image per pair."""
-        pos = cur.pos
-        nc0, nc1, nc2 = p.nc0, p.nc1, p.nc2
-        xi, yi = pos[0, i], pos[1, i]
-        zi = pos[2, i] if DIM == 3 else ZERO
-        cx, cy = R.cell_index(xi, p.inv0, nc0), R.cell_index(yi, p.inv1, nc1)
-        cz = R.cell_index(zi, p.inv2, nc2) if DIM == 3 else 0
-        a0, a1, sha, b0, b1, shb = x_ranges(cx, nc0, p.s0)
-        s = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
-        nz = R.lesser(nc2, 3) if DIM == 3 else 1
-        for oz in range(nz):
-            gz, shz = row_of(cz, oz, nc2, p.s2) if DIM == 3 else (0, ZERO)
-            for oy in range(R.lesser(nc1, 3)):
-                gy, shy = row_of(cy, oy, nc1, p.s1)
-                row = cb + (gz * nc1 + gy) * nc0
-                for run in range(2):
-                    if run == 0:
-                        lo, hi, shx = start[row + a0], start[row + a1], sha
-                    else:
-                        lo, hi, shx = start[row + b0], start[row + b1], shb
-                    for j in range(lo, hi):
-                        if j == i:
-                            continue
-                        if nc0 >= 3:
-                            dx = (pos[0, j] - xi) - shx
-                        else:
-                            dx = R.minimum_image(pos[0, j] - xi, p.l0, p.h0)
-                        if nc1 >= 3:
-                            dy = (pos[1, j] - yi) - shy
-                        else:
-                            dy = R.minimum_image(pos[1, j] - yi, p.l1, p.h1)
-                        d2 = dx * dx + dy * dy
-                        dz = ZERO
-                        if DIM == 3:
-                            if nc2 >= 3:
-                                dz = (pos[2, j] - zi) - shz
-                            else:
-                                dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2)
-                            d2 += dz * dz
-                        t = terms(i, j, dx, dy, dz, d2, d2 < p.r2, cur, tb, si, CONE)
-                        if t[3] != ZERO:
-                            s = plus(s, t)
-        return s
-
-    @cuda.jit(device=True)
-    def nearest(i, cb, cur, start, p, tb, si, bd, bi, bs):
-        """The K nearest others of slot ``i``, as :func:`metric`."""
-        pos = cur.pos
-        xi, yi = pos[0, i], pos[1, i]
-        zi = pos[2, i] if DIM == 3 else ZERO
-        c0, c1 = R.cell_index(xi, p.inv0, p.nc0), R.cell_index(yi, p.inv1, p.nc1)
-        c2 = R.cell_index(zi, p.inv2, p.nc2) if DIM == 3 else 0
-        found = R.knearest(i, c0, c1, c2, cb, pos, cur.head, cur.ids, start, p.nc0, p.nc1, p.nc2, p.l0, p.l1, p.l2,
-                           p.h0, p.h1, p.h2, DIM, K, CONE, tb.cone[0], bd, bi, bs)
-        s = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
-        for q in range(K):
-            if q < found:
-                j = bs[q]
-                dx = R.minimum_image(pos[0, j] - xi, p.l0, p.h0)
-                dy = R.minimum_image(pos[1, j] - yi, p.l1, p.h1)
-                dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2) if DIM == 3 else ZERO
-                s = plus(s, terms(i, j, dx, dy, dz, bd[q], True, cur, tb, si, False))
-        return s
-
-    # -- one step --------------------------------------------------------------------
-
-    @cuda.jit
-    def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
-        """One step of a slot into ``new[:, slot]`` and its sort record into
-        ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the sums of tau
-        steps ago (the others' heading sum, ``1 +`` their count, with cohesion the pull,
-        the push and the core count: the cpu backend's layout) and receives today's.
-        With ``prime``, only fill every ring slot with today's sums (the initial state
-        stands in for the past)."""
-        p = P[0]
-        n = p.n
-        qb = (n + BLOCK - 1) // BLOCK
-        r = cuda.blockIdx.x // qb
-        local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
-        if local >= n:
-            return
-        i = r * n + local
-        cb = r * p.cells
-        pid = cur.ids[i]
-        si = R.species_of(pid, tb.bounds) if EXT else 0
-        if K == 0:
-            s = metric(i, cb, cur, start, p, tb, si)
-        else:
-            bd = cuda.local.array(KA, real)
-            bi = cuda.local.array(KA, np.int64)
-            bs = cuda.local.array(KA, np.int64)
-            s = nearest(i, cb, cur, start, p, tb, si, bd, bi, bs)
-        gid = r * n + pid
-        total = ONE + s[3]
-        s = (s[0], s[1], s[2], total, s[4], s[5], s[6], s[7], s[8], s[9], s[10])
-        tau = rp[r].tau
-        if prime:
-            for slot in range(tau):
-                remember(ring, slot, gid, s)
-            return
-        if tau > 0:
-            s = remember(ring, clock[0] % tau, gid, s)
-        move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, clock[0])
-
-    @cuda.jit(device=True)
-    def remember(ring, slot, gid, s):
-        """Swap the sums ``s`` with those the ring holds for ``gid`` in ``slot``."""
-        W = ring.shape[2]
-        old = (ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, 2] if DIM == 3 else ZERO,
-               ring[slot, gid, DIM])
-        ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, DIM] = s[0], s[1], s[3]
-        if DIM == 3:
-            ring[slot, gid, 2] = s[2]
-        if not COH or W < 2 * DIM + 2:
-            return old[0], old[1], old[2], old[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10]
-        o = DIM + 1
-        extra = (ring[slot, gid, o], ring[slot, gid, o + 1], ring[slot, gid, o + 2] if DIM == 3 else ZERO,
-                 ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1],
-                 ring[slot, gid, o + DIM + 2] if DIM == 3 else ZERO, ring[slot, gid, o + 2 * DIM])
-        ring[slot, gid, o], ring[slot, gid, o + 1] = s[4], s[5]
-        ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1] = s[7], s[8]
-        if DIM == 3:
-            ring[slot, gid, o + 2], ring[slot, gid, o + DIM + 2] = s[6], s[9]
-        ring[slot, gid, o + 2 * DIM] = s[10]
-        return old[0], old[1], old[2], old[3], extra[0], extra[1], extra[2], extra[3], extra[4], extra[5], extra[6]
-
-    @cuda.jit(device=True)
-    def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
-        """From the others' sums ``s`` to slot ``i``'s new heading, position and sort
-        record: cohesion, the update, the move, the walls, the obstacles."""
-        pos, head = cur.pos, cur.head
-        ux, uy = head[0, i], head[1, i]
-        uz = head[2, i] if DIM == 3 else ZERO
-        sx, sy, sz, total = ux + s[0], uy + s[1], uz + s[2], s[3]
-        core = False
-        if COH:
-            sx, sy, sz, core = R.cohesive_sum(sx, sy, sz, s[4], s[5], s[6], s[7], s[8], s[9], s[10], tb.cohesion[0])
-        vectorial = p.vectorial != 0
-        if EXT:
-            eta, epsilon = tb.species[r, si, 0], tb.species[r, si, 1]
-            turn, h = tb.species[r, si, 2], tb.species[r, si, 3]
-            if core:  # an infinite repulsion drowns the field and vectorial noise
-                h = ZERO
-                if vectorial:
-                    eta = ZERO
-        else:
-            eta, epsilon, turn, h = rp[r].eta, rp[r].epsilon, ZERO, ZERO
-        if p.speeds != 0:
-            ds = cur.spd[i] * p.dt
-            new.spd[i] = cur.spd[i]
-        else:
-            ds = rp[r].v0 * p.dt
-        seed, step_, upid = rp[r].seed, np.uint64(t), np.uint64(pid)
-        if DIM == 2:
-            wx, wy = R.update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step_, upid, h, tb.field[0],
-                                 tb.field[1], turn)
-            wz = ZERO
-        else:
-            wx, wy, wz = R.update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step_, upid, h,
-                                     tb.field[0], tb.field[1], tb.field[2])
-        mx, my, mz = (wx, wy, wz) if p.backward != 0 else (ux, uy, uz)
-        x, y = pos[0, i] + ds * mx, pos[1, i] + ds * my
-        z = pos[2, i] + ds * mz if DIM == 3 else ZERO
-        if EXT:
-            x, wx = R.fold(x, wx, p.l0, p.w0 != 0)
-            y, wy = R.fold(y, wy, p.l1, p.w1 != 0)
-            if DIM == 3:
-                z, wz = R.fold(z, wz, p.l2, p.w2 != 0)
-            for o in range(p.obstacles):
-                ob = tb.obstacles
-                if DIM == 2:
-                    x, y, wx, wy = R.push_out_2d(x, y, wx, wy, ob[o, 0], ob[o, 1], ob[o, 2], p.l0, p.l1, p.h0, p.h1,
-                                                 p.w0 != 0, p.w1 != 0)
-                else:
-                    x, y, z, wx, wy, wz = R.push_out_3d(x, y, z, wx, wy, wz, ob[o, 0], ob[o, 1], ob[o, 2], ob[o, 3],
-                                                        p.l0, p.l1, p.l2, p.h0, p.h1, p.h2, p.w0 != 0, p.w1 != 0,
-                                                        p.w2 != 0)
-        else:
-            x, y = R.wrap(x, p.l0), R.wrap(y, p.l1)
-            if DIM == 3:
-                z = R.wrap(z, p.l2)
-        new.head[0, i], new.head[1, i] = wx, wy
-        new.pos[0, i], new.pos[1, i] = x, y
-        c = R.cell_index(y, p.inv1, p.nc1) * p.nc0 + R.cell_index(x, p.inv0, p.nc0)
-        if DIM == 3:
-            new.head[2, i], new.pos[2, i] = wz, z
-            c += R.cell_index(z, p.inv2, p.nc2) * p.nc1 * p.nc0
-        new.ids[i] = pid
-        rec[gid] = (np.uint64(cb + c) << KEY) | np.uint64(i)
-
-    @cuda.jit
-    def cells(pos, P, rec):
-        """Sort records of positions in global-id order (a state being loaded)."""
-        p = P[0]
-        n = p.n
-        qb = (n + BLOCK - 1) // BLOCK
-        r = cuda.blockIdx.x // qb
-        local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
-        if local >= n:
-            return
-        i = r * n + local
-        c = R.cell_index(pos[1, i], p.inv1, p.nc1) * p.nc0 + R.cell_index(pos[0, i], p.inv0, p.nc0)
-        if DIM == 3:
-            c += R.cell_index(pos[2, i], p.inv2, p.nc2) * p.nc1 * p.nc0
-        rec[i] = (np.uint64(r * p.cells + c) << KEY) | np.uint64(i)
-
-    # -- back into slots, cell starts, moments ------------------------------------------
-
-    @cuda.jit(device=True)
-    def block_sum(buf, tid):
-        """Tree sum of the shared ``buf[:, :BLOCK]`` into ``buf[:, 0]``, in a fixed order;
-        every thread of the block calls it."""
-        cuda.syncthreads()
-        stride = BLOCK // 2
-        while stride > 0:
-            if tid < stride:
-                for a in range(WIDTH):
-                    buf[a, tid] += buf[a, tid + stride]
-            cuda.syncthreads()
-            stride //= 2
-
-    @cuda.jit
-    def gather(srt, new, P, cur, start, partial, bounds):
-        """Slot ``s`` takes the particle the sort put there (``srt[s]`` holds the slot it
-        came from); each cell's start is found by a binary search in the replica's sorted
-        records; each block's moment sums (float64) go to ``partial``: each species'
-        heading sum, then the nematic products (as :func:`flocking.observables.moment_sums`)."""
-        buf = cuda.shared.array((WIDTH, BLOCK), np.float64)
-        p = P[0]
-        n, ncells = p.n, p.cells
-        qb = (n + BLOCK - 1) // BLOCK
-        r = cuda.blockIdx.x // qb
-        tid = cuda.threadIdx.x
-        local = (cuda.blockIdx.x % qb) * BLOCK + tid
-        for a in range(WIDTH):
-            buf[a, tid] = 0.0
-        if local < n:
-            s = r * n + local
-            o = np.int64(srt[s] & LOW)
-            row = R.species_of(new.ids[o], bounds) * DIM if NSPECIES > 1 else 0
-            for a in range(DIM):
-                cur.pos[a, s] = new.pos[a, o]
-                cur.head[a, s] = new.head[a, o]
-                buf[row + a, tid] = np.float64(new.head[a, o])
-            if NEM:
-                wx, wy = np.float64(new.head[0, o]), np.float64(new.head[1, o])
-                row = NSPECIES * DIM
-                if DIM == 2:
-                    buf[row, tid], buf[row + 1, tid] = R.nematic_2d(wx, wy)
-                else:
-                    m = R.nematic_3d(wx, wy, np.float64(new.head[2, o]))
-                    for e in range(6):
-                        buf[row + e, tid] = m[e]
-            cur.ids[s] = new.ids[o]
-            if p.speeds != 0:
-                cur.spd[s] = new.spd[o]
-        if local < ncells:  # cells never outnumber particles
-            key = np.uint64(r * ncells + local)
-            lo, hi = r * n, r * n + n
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if (srt[mid] >> KEY) < key:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            start[r * ncells + local] = lo
-        block_sum(buf, tid)
-        if tid == 0:
-            for a in range(WIDTH):
-                partial[a, cuda.blockIdx.x] = buf[a, 0]
-
-    @cuda.jit
-    def finish(partial, P, phi, clock, hist, tiles, tick):
-        """Block ``r``: replica ``r``'s block sums, in a fixed order, into row
-        ``clock[0] % rows`` of ``phi`` (with ``tick``). Block 0 also readies the sort's
-        counters for the next sort."""
-        buf = cuda.shared.array((WIDTH, BLOCK), np.float64)
-        p = P[0]
-        qb = (p.n + BLOCK - 1) // BLOCK
-        r = cuda.blockIdx.x
-        tid = cuda.threadIdx.x
-        if r == 0:
-            for e in range(tid, HSIZE, BLOCK):
-                hist[e] = 0
-            if tid < PMAX:
-                tiles[tid] = 0
-            if tid == 0:
-                clock[1] += 1
-        if tick:
-            for a in range(WIDTH):
-                acc = 0.0
-                for b in range(tid, qb, BLOCK):
-                    acc += partial[a, r * qb + b]
-                buf[a, tid] = acc
-            block_sum(buf, tid)
-            if tid == 0:
-                row = clock[0] % p.rows
-                for a in range(WIDTH):
-                    phi[r, row, a] = buf[a, 0]
+    namespace = {**globals(), "R": R, "EXT": EXT, "CPL": CPL, "NEM": NEM, "CONE": CONE, "COH": COH, "DIM": DIM,
+                 "K": K, "KA": KA, "NSPECIES": NSPECIES, "WIDTH": WIDTH, "BLOCK": BLOCK, "HSIZE": HSIZE,
+                 "PMAX": PMAX, "REAL": real, "ZERO": ZERO, "ONE": ONE}
+    for name in DEVICE:
+        namespace[name] = cuda.jit(device=True)(rebind(globals()[name], namespace))
+    for name in KERNELS:
+        namespace[name] = cuda.jit(rebind(globals()[name], namespace))
+    step, cells, gather, finish = (namespace[name] for name in KERNELS)
 
     return types.SimpleNamespace(real=real, step=step, cells=cells, gather=gather, finish=finish, sort=sort,
                                  width=WIDTH, block=BLOCK)

@@ -48,6 +48,19 @@ def constants(real) -> dict:
                 TWO_PI=real(2.0 * math.pi), INF=real(np.inf), TINY=real(1e-12), NEAR_X=real(0.9))
 
 
+def rebind(function, namespace: dict, qualname: str | None = None):
+    """A copy of the plain function ``function`` whose globals are ``namespace`` (and whose
+    qualified name, under which numba caches it, is ``qualname``): how a function is
+    compiled with other values of the names it reads (here the float type's constants; the
+    kernels' flags in :mod:`flocking.backends.cpu_kernels` and
+    :mod:`flocking.backends.cuda_kernels`)."""
+    out = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__,
+                             function.__closure__)
+    out.__qualname__ = qualname or function.__qualname__
+    out.__module__, out.__doc__ = function.__module__, function.__doc__
+    return out
+
+
 @functools.lru_cache(maxsize=None)
 def compile(target: str = "cpu", real=np.float64) -> types.ModuleType:  # noqa: A001 - the verb is the point
     """Every rule compiled for ``target`` (``"cpu"`` or ``"cuda"``) with floats of type
@@ -70,11 +83,7 @@ def compile(target: str = "cpu", real=np.float64) -> types.ModuleType:  # noqa: 
         namespace.update(bound)
         namespace.update(built)
         for name in module.RULES:
-            plain = getattr(module, name)
-            function = types.FunctionType(plain.__code__, namespace, name, plain.__defaults__, plain.__closure__)
-            function.__qualname__, function.__module__, function.__doc__ = plain.__qualname__, module.__name__, \
-                plain.__doc__
-            built[name] = namespace[name] = jit(function)
+            built[name] = namespace[name] = jit(rebind(getattr(module, name), namespace))
     out = types.ModuleType(f"{__name__}.{target}_{np.dtype(real).name}")
     vars(out).update(built)
     vars(out).update(bound)
