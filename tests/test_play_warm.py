@@ -18,9 +18,10 @@ from flocking.play import server  # noqa: E402
 
 SRC = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, "src"))
 
-#: what a page's controls switch on, each alone, that the warm-up covers (as parameters of a
-#: small model; combinations of kernels' features compile when first asked for, and the page
-#: says so: tests/test_play_browser.py)
+#: what a page's controls switch on, each alone, and combinations of them that the warm-up
+#: covers (as parameters of a small model; cohesion with a pair weight, and combinations with
+#: topological neighbours or in 3D, compile when first asked for, and the page says so:
+#: tests/test_play_browser.py)
 PAGE = [
     {"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]},
     {"boundary": "wall,periodic"},
@@ -32,6 +33,10 @@ PAGE = [
     {"vision": 1.0},
     {"chirality": 0.2},
     {"cohesion": 2.0},
+    {"cohesion": 2.0, "chirality": 0.2, "boundary": "wall"},
+    {"vision": 1.0, "chirality": 0.2, "boundary": "wall"},
+    {"vision": 1.0, "species": [{"name": "A", "fraction": 0.5}, {"name": "B", "fraction": 0.5}],
+     "coupling": [[1.0, -1.0], [-1.0, 1.0]], "obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]},
     {"neighbours": "topological", "k": 7},
     {"neighbours": "topological", "k": 7, "obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]},
     {"noise_type": "vectorial", "noise": 0.5},
@@ -79,11 +84,12 @@ def test_after_the_warm_up_no_setting_of_the_page_compiles():
 
 def test_the_warm_up_covers_each_feature_of_the_page_and_plain_and_extended_kernels():
     from flocking.backends.cpu import kernel_name
+    from flocking.backends.cpu_kernels import variant
     from flocking.backends.features import features
 
-    kinds = {(m.dim, kernel_name(m), features(m)) for m in server.warm_models()}
-    assert {(f.coupling, f.cone, f.cohesion) for d, k, f in kinds if (d, k) == (2, "lines")} == \
-        {(False, False, False), (True, False, False), (False, True, False), (False, False, True)}
+    kinds = {(m.dim, kernel_name(m), variant(features(m))) for m in server.warm_models()}
+    assert {(f.extended, f.weighted, f.cohesion) for d, k, f in kinds if (d, k) == (2, "lines")} == \
+        {(False, False, False), (True, False, False), (True, True, False), (True, True, True)}
     assert {(d, k, f.extended) for d, k, f in kinds} == {(2, "lines", False), (2, "lines", True), (2, "search", False),
                                                          (2, "search", True), (3, "lines", False), (3, "lines", True)}
 

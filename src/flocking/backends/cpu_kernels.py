@@ -145,7 +145,7 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
 # inlined into its kernels, what a flag leaves out is never compiled.
 
 
-def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh):
+def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias, coh):
     """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour`: it
     counts within ``R`` and ``j <= last``; the coupling of the particle's species to the
     candidate's is buffer row ``jr``. Returns heading (2), count, pull (2), push (2),
@@ -154,25 +154,25 @@ def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh):
     dy = buf[1, j] - yi
     d2 = dx * dx + dy * dy
     t = R.neighbour(2, dx, dy, 0.0, d2, (d2 < r2) & (j <= last), ux, uy, 0.0, buf[2, j], buf[3, j], 0.0,
-                    buf[jr, j] if CPL else 1.0, NEM, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
+                    buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
     return t[0], t[1], t[3], t[4], t[5], t[7], t[8], t[10]
 
 
-def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh):
+def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh):
     """:func:`pair_2d` in 3D: heading (3), count, pull (3), push (3), core count."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi
     d2 = dx * dx + dy * dy + dz * dz
     return R.neighbour(3, dx, dy, dz, d2, (d2 < r2) & (j <= last), ux, uy, uz, buf[3, j], buf[4, j], buf[5, j],
-                       buf[jr, j] if CPL else 1.0, NEM, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
+                       buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
 
 
 # The weighed sums keep one scalar per lane and quantity, like the plain ones: held in
 # tuples, the lanes were not packed into SIMD registers (three times slower per candidate).
 
 
-def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o):
+def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, out, o):
     """As :func:`reduce_2d` (the particle itself included, four lanes), each candidate
     weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count, and with
     cohesion the pull (2), the push (2) and the core count."""
@@ -190,12 +190,14 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o):
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                p0, q0, w0, pc0, pd0, pe0, pf0, pg0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, coh)
-                p1, q1, w1, pc1, pd1, pe1, pf1, pg1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, coh)
+                p0, q0, w0, pc0, pd0, pe0, pf0, pg0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias,
+                                                              coh)
+                p1, q1, w1, pc1, pd1, pe1, pf1, pg1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, bias,
+                                                              coh)
                 p2, q2, w2, pc2, pd2, pe2, pf2, pg2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr,
-                                                              cone, coh)
+                                                              cone, bias, coh)
                 p3, q3, w3, pc3, pd3, pe3, pf3, pg3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr,
-                                                              cone, coh)
+                                                              cone, bias, coh)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
@@ -217,7 +219,7 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, coh, out, o):
             out[7, q] = (g0 + g1) + (g2 + g3)
 
 
-def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out, o):
+def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, coh, out, o):
     """:func:`wreduce_2d` in 3D; rows: heading sum (3), count, pull (3), push (3), core count."""
     for i in range(i0, i1):
         xi = x[i]
@@ -236,10 +238,10 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, coh, out
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                t0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh)
-                t1 = pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh)
-                t2 = pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh)
-                t3 = pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, coh)
+                t0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh)
+                t1 = pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh)
+                t2 = pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh)
+                t3 = pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh)
                 a0, a1, a2, a3 = a0 + t0[0], a1 + t1[0], a2 + t2[0], a3 + t3[0]
                 b0, b1, b2, b3 = b0 + t0[1], b1 + t1[1], b2 + t2[1], b3 + t3[1]
                 c0, c1, c2, c3 = c0 + t0[2], c1 + t1[2], c2 + t2[2], c3 + t3[2]
@@ -278,8 +280,8 @@ def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, cone):
     coh = tb.cohesion
     coupling = tb.coupling[si, R.species_of(ids[j], tb.bounds)] if CPL else 1.0
     return R.neighbour(d, dx, dy, dz, d2, inside, head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, head[0, j],
-                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, cone, tb.cone[0], COH, coh[1],
-                       coh[2], coh[3], coh[4])
+                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, tb.bias[0], cone, tb.cone[0], COH,
+                       coh[1], coh[2], coh[3], coh[4])
 
 
 @numba.njit(cache=True, inline="always")
@@ -474,8 +476,8 @@ def add_moments(acc, wx, wy, wz, pid, bounds):
     acc[o + 1] += wy
     if d == 3:
         acc[o + 2] += wz
-    if NEM:
-        o = (bounds.shape[0] - 1) * d
+    o = (bounds.shape[0] - 1) * d
+    if NEM and acc.shape[0] > o:  # a variant with nematic alignment runs models without it
         if d == 2:
             a, b = R.nematic_2d(wx, wy)
             acc[o] += a
@@ -555,10 +557,10 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
                 reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
             elif d == 2:
                 wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0],
-                           tb.cohesion, out, start[c] - s0)
+                           tb.bias[0], tb.cohesion, out, start[c] - s0)
             else:
                 wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0],
-                           tb.cohesion, out, start[c] - s0)
+                           tb.bias[0], tb.cohesion, out, start[c] - s0)
         px = 0.0
         py = 0.0
         pz = 0.0
@@ -658,6 +660,25 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
 #: the functions compiled once per variant, callees first: each reads the flags as globals
 VARIANT = ("pair_2d", "pair_3d", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums", "nearest_sums",
            "remember", "advance", "add_moments", "line_units", "search_blocks")
+
+
+def variant(features: Features) -> Features:
+    """The variant of the kernels that steps a model with ``features``. The pair weights (a
+    coupling, nematic signs, a vision cone) are compiled in together, whichever are on: one
+    variant instead of seven, so a new combination seldom waits for numba. A weight that
+    the model leaves off is made neutral by its table (couplings of 1, a ``bias`` of
+    4, the cone -4) and multiplies by exactly 1: the sums are those of a variant of its own, bit
+    for bit, at a cost measured in docs/performance.md. Cohesion alone keeps a variant of
+    its own (the weights cost it a third of its speed).
+
+    >>> variant(Features(extended=True, cone=True))
+    Features(extended=True, coupling=True, nematic=True, cone=True, cohesion=False)
+    >>> variant(Features(extended=True, cohesion=True)) == Features(extended=True, cohesion=True)
+    True
+    """
+    if not (features.coupling or features.nematic or features.cone):
+        return features
+    return features._replace(coupling=True, nematic=True, cone=True)
 
 
 @functools.lru_cache(maxsize=None)

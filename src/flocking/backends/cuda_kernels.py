@@ -153,7 +153,7 @@ def terms(i, j, dx, dy, dz, d2, inside, cur, tb, si, with_cone):
     uz = head[2, i] if DIM == 3 else ZERO
     vz = head[2, j] if DIM == 3 else ZERO
     return R.neighbour(DIM, dx, dy, dz, d2, inside, head[0, i], head[1, i], uz, head[0, j], head[1, j], vz,
-                       coupling, NEM, with_cone, tb.cone[0], COH, coh[1], coh[2], coh[3], coh[4])
+                       coupling, NEM, ZERO, with_cone, tb.cone[0], COH, coh[1], coh[2], coh[3], coh[4])
 
 def metric(i, cb, cur, start, p, tb, si):
     """The others within R of slot ``i`` (``cb``: the replica's first cell): weighed

@@ -79,7 +79,10 @@ class Tables(typing.NamedTuple):
     - ``cone`` (1): ``cos |cos|`` of the vision half-angle (-4 without a cone: every
       neighbour is seen, see :func:`flocking.rules.physics.sees`);
     - ``cohesion`` (5): the strength ``beta``, ``r_c^2``, ``r_e``, ``r_a`` and the slope
-      ``1 / (4 (r_a - r_e))`` of the attraction-repulsion (zeros without cohesion).
+      ``1 / (4 (r_a - r_e))`` of the attraction-repulsion (zeros without cohesion);
+    - ``bias`` (1): added to ``u . v`` before nematic alignment takes its sign: 0 with
+      nematic alignment, 4 without (no sign flips; see
+      :func:`flocking.rules.physics.neighbour`).
     """
 
     walls: np.ndarray
@@ -91,6 +94,7 @@ class Tables(typing.NamedTuple):
     field: np.ndarray
     cone: np.ndarray
     cohesion: np.ndarray
+    bias: np.ndarray
 
 
 def tables(model: Model) -> Tables:
@@ -115,7 +119,8 @@ def tables(model: Model) -> Tables:
         cohesion[:] = model.cohesion, rc * rc, re, ra, 1.0 / (4.0 * (ra - re))
     return Tables(walls=walls, half=np.where(walls != 0, np.inf, box / 2.0), obstacles=obstacles,
                   bounds=np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64),
-                  species=species, coupling=coupling, field=field, cone=cone, cohesion=cohesion)
+                  species=species, coupling=coupling, field=field, cone=cone, cohesion=cohesion,
+                  bias=np.array([0.0 if model.alignment_rule == "nematic" else 4.0]))
 
 
 class Step(typing.NamedTuple):

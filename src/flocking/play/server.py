@@ -208,23 +208,21 @@ def same_origin(origin: str | None, host: str | None) -> bool:
         return False
 
 
-#: what a page switches on, each alone, that needs a kernel of its own
-#: (:class:`flocking.backends.features.Features`): walls, obstacles, chirality, a second
-#: species with the same coupling run in the extended kernel; anti-aligning species, a vision
-#: cone and cohesion each in one compiled for them
-PAGE_FEATURES = ({"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]},
-                 {"species": [{"name": "A", "fraction": 0.5}, {"name": "B", "fraction": 0.5}],
-                  "coupling": [[1.0, -1.0], [-1.0, 1.0]]},
-                 {"vision": 1.0}, {"cohesion": 1.0})
+#: what a page switches on that needs a kernel of its own
+#: (:func:`flocking.backends.cpu_kernels.variant`): walls, obstacles, chirality, species run
+#: in the extended kernel; any pair weight (anti-aligning species, a vision cone) in the
+#: weighted one; cohesion, alone or with them, in its own
+PAGE_FEATURES = ({"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]}, {"vision": 1.0}, {"cohesion": 1.0})
 
 
 def warm_models() -> list[Model]:
     """Small models whose first steps compile the kernels a page most often switches to:
     in 2D with metric neighbours, the plain model and each of :data:`PAGE_FEATURES`; with
     topological neighbours and in 3D, the plain and the extended model. The other options
-    (delay, vectorial noise, walls, chirality, ...) run in one of these kernels; a
-    combination (a vision cone and cohesion together, say) compiles when first asked for,
-    and the page says so while it does."""
+    (delay, vectorial noise, walls, chirality, ...) and in 2D their combinations with each
+    other and with a cone or a coupling run in one of these kernels; cohesion with a cone or
+    a coupling, and combinations with topological neighbours or in 3D, compile when first
+    asked for, and the page says so while they do."""
     small = {"n": 64, "box": 8.0}
     models = [Model(**small)] + [Model(**small, **extra) for extra in PAGE_FEATURES]
     for dim, neighbours in ((2, {"neighbours": "topological", "k": 7}), (3, {})):

@@ -160,8 +160,8 @@ def cohesion_term(dx, dy, dz, d2, inside, rc2, re, ra, slope):
     return g * dx, g * dy, g * dz, -(h * dx), -(h * dy), -(h * dz), ONE if core else ZERO
 
 
-def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nematic, with_cone, cone, cohesion,
-              rc2, re, ra, slope):
+def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nematic, bias, with_cone, cone,
+              cohesion, rc2, re, ra, slope):
     """What a candidate neighbour adds to a particle's sums (docs/model.md, steps 1 and 2
     with the extensions): the particle has heading ``u``, the candidate heading ``v``, at
     ``r = (dx, dy, dz)`` from it, ``d2 = |r|^2``; ``inside`` says whether the
@@ -170,7 +170,9 @@ def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nem
     It counts only if also in the vision cone (``with_cone``: :func:`sees`). Its heading
     is weighed by ``J c``: ``coupling``, the coupling of the two species (1 without a
     matrix), and with ``nematic`` alignment ``c = -1`` where the headings point apart
-    (``u . v < 0``; ``c = 1`` at 0). With ``cohesion``, it adds :func:`cohesion_term`.
+    (``u . v + bias < 0``; ``c = 1`` at 0): ``bias`` is 0, or 4 in a kernel that compiles
+    nematic alignment in for a model without it (``u . v >= -1``: no sign flips). With
+    ``cohesion``, it adds :func:`cohesion_term`.
     Returns ``(J c v (3), counted (0 or 1), pull (3), push (3), core count)``; the z
     entries are 0 in 2D. The flags ``dim``, ``nematic``, ``with_cone`` and ``cohesion``
     are compile-time constants of the kernels, which fold away what they leave out; no
@@ -183,7 +185,7 @@ def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nem
     n = ONE if inside else ZERO
     w = n * coupling
     if nematic:
-        dot = ux * vx + uy * vy
+        dot = ux * vx + uy * vy + bias
         if dim == 3:
             dot += uz * vz
         w = w * (-ONE if dot < ZERO else ONE)
