@@ -224,6 +224,15 @@ def nearest(i, cb, cur, start, p, tb, si, bd, bi, bs):
 
 # -- one step --------------------------------------------------------------------
 
+def slot_of(n):
+    """This thread's replica ``r``, its slot in the replica (``>= n``, replicas of ``n``
+    particles, where it has none) and its slot in the arrays: a replica takes
+    ``ceil(n / BLOCK)`` blocks."""
+    qb = (n + BLOCK - 1) // BLOCK
+    r = cuda.blockIdx.x // qb
+    local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
+    return r, local, r * n + local
+
 def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     """One step of a slot into ``new[:, slot]`` and its sort record into
     ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the sums of tau
@@ -233,12 +242,9 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     stands in for the past)."""
     p = P[0]
     n = p.n
-    qb = (n + BLOCK - 1) // BLOCK
-    r = cuda.blockIdx.x // qb
-    local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
+    r, local, i = slot_of(n)
     if local >= n:
         return
-    i = r * n + local
     cb = r * p.cells
     pid = cur.ids[i]
     si = R.species_of(pid, tb.bounds) if EXT else 0
@@ -349,12 +355,9 @@ def cells(pos, P, rec):
     """Sort records of positions in global-id order (a state being loaded)."""
     p = P[0]
     n = p.n
-    qb = (n + BLOCK - 1) // BLOCK
-    r = cuda.blockIdx.x // qb
-    local = (cuda.blockIdx.x % qb) * BLOCK + cuda.threadIdx.x
+    r, local, i = slot_of(n)
     if local >= n:
         return
-    i = r * n + local
     c = R.cell_index(pos[1, i], p.inv1, p.nc1) * p.nc0 + R.cell_index(pos[0, i], p.inv0, p.nc0)
     if DIM == 3:
         c += R.cell_index(pos[2, i], p.inv2, p.nc2) * p.nc1 * p.nc0
@@ -382,14 +385,11 @@ def gather(srt, new, P, cur, start, partial, bounds):
     buf = cuda.shared.array((WIDTH, BLOCK), np.float64)
     p = P[0]
     n, ncells = p.n, p.cells
-    qb = (n + BLOCK - 1) // BLOCK
-    r = cuda.blockIdx.x // qb
     tid = cuda.threadIdx.x
-    local = (cuda.blockIdx.x % qb) * BLOCK + tid
+    r, local, s = slot_of(n)
     for a in range(WIDTH):
         buf[a, tid] = 0.0
     if local < n:
-        s = r * n + local
         o = np.int64(srt[s] & LOW)
         row = R.species_of(new.ids[o], bounds) * DIM if NSPECIES > 1 else 0
         for a in range(DIM):
@@ -453,7 +453,7 @@ def finish(partial, P, phi, clock, hist, tiles, tick):
 
 
 #: the device functions of a build, callees first
-DEVICE = ('x_ranges', 'row_of', 'plus', 'terms', 'metric', 'nearest', 'remember', 'move', 'block_sum')
+DEVICE = ('slot_of', 'x_ranges', 'row_of', 'plus', 'terms', 'metric', 'nearest', 'remember', 'move', 'block_sum')
 #: the kernels of a build
 KERNELS = ('step', 'cells', 'gather', 'finish')
 
