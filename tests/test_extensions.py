@@ -128,11 +128,12 @@ def test_cpu_matches_reference_step_by_step(dim, name):
 def test_crowded_cells_by_a_wall_grow_the_buffer_and_match_reference(dim, weighted):
     """Thousands of particles in one corner by the walls: the line kernel's candidate
     buffer (4096 entries to start with) must grow, no neighbour is seen across a wall, and
-    every sum matches, with pair weights (coupling, cone, nematic) and without."""
+    every sum matches, with pair weights (coupling, cone, nematic) and cohesion (its list of
+    the candidates that count grows with the buffer) and without."""
     options = dict(boundary="wall")
     if weighted:
         options.update(species=[{"fraction": 0.5}, {"fraction": 0.5}], coupling=[[1.0, -1.0], [0.5, 1.0]],
-                       vision=2.5, alignment_rule="nematic")
+                       vision=2.5, alignment_rule="nematic", cohesion=0.5)
     model = make(dim, options).replace(n=5000, box=10.0 if dim == 2 else 5.0)
     state = State.random(model)
     state.positions[:4500] = np.random.default_rng(1).uniform(0.0, 0.9, size=(4500, dim))

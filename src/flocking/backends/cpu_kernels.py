@@ -27,7 +27,8 @@ registers without reordering any addition, so the result is fixed by this source
 differently). Without pair weights the sum includes the particle itself and goes to the
 update as it is; with them (a coupling, nematic signs, a vision cone, cohesion) each pair
 is weighed by :func:`flocking.rules.physics.neighbour`, the particle itself is taken out,
-and its own heading goes back with weight 1.
+and its own heading goes back with weight 1. Cohesion is summed in a second loop over the
+candidates that count, which the lanes note (:func:`cohere`).
 
 Determinism. Work units are fixed by the model and a particle's new heading depends only
 on the sorted arrays and on counter-based random numbers; each unit's moment sums are
@@ -141,41 +142,104 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
 
 
 # -- weighted neighbour sums (pair weights, cohesion) ---------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def note(near, k, j, w0, w1, w2, w3):
+    """Note candidates ``j .. j + 3`` in ``near`` from ``near[k]`` on, each kept only if
+    its count ``w`` is not 0 (stored whatever it is; the index advances by its count):
+    returns the new ``k``."""
+    near[k] = j
+    k += w0 != 0.0
+    near[k] = j + U1
+    k += w1 != 0.0
+    near[k] = j + np.uint64(2)
+    k += w2 != 0.0
+    near[k] = j + np.uint64(3)
+    k += w3 != 0.0
+    return k
 # These read the flags (CPL, NEM, CONE, COH) as globals: compiled per variant by build() and
 # inlined into its kernels, what a flag leaves out is never compiled.
 
 
-def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias, coh):
-    """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour`: it
-    counts within ``R`` and ``j <= last``; the coupling of the particle's species to the
-    candidate's is buffer row ``jr``. Returns heading (2), count, pull (2), push (2),
-    core count."""
+def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias):
+    """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour`, without
+    cohesion (see :func:`wreduce_2d`): it counts within ``R`` and ``j <= last``; the
+    coupling of the particle's species to the candidate's is buffer row ``jr``. Returns
+    the weighed heading (2) and the count."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     d2 = dx * dx + dy * dy
     t = R.neighbour(2, dx, dy, 0.0, d2, (d2 < r2) & (j <= last), ux, uy, 0.0, buf[2, j], buf[3, j], 0.0,
-                    buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
-    return t[0], t[1], t[3], t[4], t[5], t[7], t[8], t[10]
+                    buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, False, 0.0, 0.0, 0.0, 0.0)
+    return t[0], t[1], t[3]
 
 
-def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh):
-    """:func:`pair_2d` in 3D: heading (3), count, pull (3), push (3), core count."""
+def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias):
+    """:func:`pair_2d` in 3D: the weighed heading (3) and the count."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi
     d2 = dx * dx + dy * dy + dz * dz
-    return R.neighbour(3, dx, dy, dz, d2, (d2 < r2) & (j <= last), ux, uy, uz, buf[3, j], buf[4, j], buf[5, j],
-                       buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, COH, coh[1], coh[2], coh[3], coh[4])
+    t = R.neighbour(3, dx, dy, dz, d2, (d2 < r2) & (j <= last), ux, uy, uz, buf[3, j], buf[4, j], buf[5, j],
+                    buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, False, 0.0, 0.0, 0.0, 0.0)
+    return t[0], t[1], t[2], t[3]
+
+
+def force(buf, near, m, k, xi, yi, zi, coh):
+    """:func:`flocking.rules.physics.cohesion_term` of candidate ``near[m]`` of the buffer,
+    or zeros if ``m >= k``."""
+    inside = m < k
+    j = near[m if inside else 0]
+    dx = buf[0, j] - xi
+    dy = buf[1, j] - yi
+    dz = buf[2, j] - zi if DIM == 3 else 0.0
+    return R.cohesion_term(dx, dy, dz, dx * dx + dy * dy + dz * dz, inside, coh[1], coh[2], coh[3], coh[4])
+
+
+def cohere(buf, near, k, xi, yi, zi, coh, out, q):
+    """Cohesion of a particle at ``(xi, yi, zi)``: :func:`flocking.rules.physics.cohesion_term`
+    summed over the ``k`` candidates ``near[:k]`` of the buffer that count, in four lanes
+    as the reductions sum, into rows ``DIM + 1`` on of ``out[:, q]``: the pull (``DIM``),
+    the push (``DIM``), the core count."""
+    d = DIM
+    px0 = px1 = px2 = px3 = py0 = py1 = py2 = py3 = pz0 = pz1 = pz2 = pz3 = 0.0
+    qx0 = qx1 = qx2 = qx3 = qy0 = qy1 = qy2 = qy3 = qz0 = qz1 = qz2 = qz3 = 0.0
+    c0 = c1 = c2 = c3 = 0.0
+    for m in range(0, k, 4):
+        t0 = force(buf, near, m, k, xi, yi, zi, coh)
+        t1 = force(buf, near, m + 1, k, xi, yi, zi, coh)
+        t2 = force(buf, near, m + 2, k, xi, yi, zi, coh)
+        t3 = force(buf, near, m + 3, k, xi, yi, zi, coh)
+        px0, px1, px2, px3 = px0 + t0[0], px1 + t1[0], px2 + t2[0], px3 + t3[0]
+        py0, py1, py2, py3 = py0 + t0[1], py1 + t1[1], py2 + t2[1], py3 + t3[1]
+        qx0, qx1, qx2, qx3 = qx0 + t0[3], qx1 + t1[3], qx2 + t2[3], qx3 + t3[3]
+        qy0, qy1, qy2, qy3 = qy0 + t0[4], qy1 + t1[4], qy2 + t2[4], qy3 + t3[4]
+        c0, c1, c2, c3 = c0 + t0[6], c1 + t1[6], c2 + t2[6], c3 + t3[6]
+        if d == 3:
+            pz0, pz1, pz2, pz3 = pz0 + t0[2], pz1 + t1[2], pz2 + t2[2], pz3 + t3[2]
+            qz0, qz1, qz2, qz3 = qz0 + t0[5], qz1 + t1[5], qz2 + t2[5], qz3 + t3[5]
+    o = d + 1
+    out[o, q], out[o + 1, q] = (px0 + px1) + (px2 + px3), (py0 + py1) + (py2 + py3)
+    out[o + d, q], out[o + d + 1, q] = (qx0 + qx1) + (qx2 + qx3), (qy0 + qy1) + (qy2 + qy3)
+    if d == 3:
+        out[o + 2, q], out[o + d + 2, q] = (pz0 + pz1) + (pz2 + pz3), (qz0 + qz1) + (qz2 + qz3)
+    out[o + 2 * d, q] = (c0 + c1) + (c2 + c3)
 
 
 # The weighed sums keep one scalar per lane and quantity, like the plain ones: held in
 # tuples, the lanes were not packed into SIMD registers (three times slower per candidate).
+# Cohesion is not summed in the lanes: they note the candidates that count (``near``, a
+# store at every candidate and an index that advances by the count, no branch), and
+# :func:`cohere` sums over those alone: its square root, division and piecewise force for
+# the few within reach, not for every candidate, and no more registers in the lanes.
 
 
-def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, out, o):
+def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, near, out, o):
     """As :func:`reduce_2d` (the particle itself included, four lanes), each candidate
     weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count, and with
-    cohesion the pull (2), the push (2) and the core count."""
+    cohesion (:func:`cohere`, ``near`` its scratch) the pull (2), the push (2) and the core
+    count."""
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
@@ -183,43 +247,30 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, out,
         uy = hy[i]
         jr = np.uint64(4 + int(tag[i])) if CPL else np.uint64(0)
         a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = n0 = n1 = n2 = n3 = 0.0
-        c0 = c1 = c2 = c3 = d0 = d1 = d2 = d3 = 0.0
-        e0 = e1 = e2 = e3 = f0 = f1 = f2 = f3 = g0 = g1 = g2 = g3 = 0.0
+        k = 0
         for r in range(ranges.shape[0]):
             lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                p0, q0, w0, pc0, pd0, pe0, pf0, pg0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias,
-                                                              coh)
-                p1, q1, w1, pc1, pd1, pe1, pf1, pg1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, bias,
-                                                              coh)
-                p2, q2, w2, pc2, pd2, pe2, pf2, pg2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr,
-                                                              cone, bias, coh)
-                p3, q3, w3, pc3, pd3, pe3, pf3, pg3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr,
-                                                              cone, bias, coh)
+                p0, q0, w0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias)
+                p1, q1, w1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, bias)
+                p2, q2, w2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, cone, bias)
+                p3, q3, w3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, cone, bias)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
                 if COH:
-                    c0, c1, c2, c3 = c0 + pc0, c1 + pc1, c2 + pc2, c3 + pc3
-                    d0, d1, d2, d3 = d0 + pd0, d1 + pd1, d2 + pd2, d3 + pd3
-                    e0, e1, e2, e3 = e0 + pe0, e1 + pe1, e2 + pe2, e3 + pe3
-                    f0, f1, f2, f3 = f0 + pf0, f1 + pf1, f2 + pf2, f3 + pf3
-                    g0, g1, g2, g3 = g0 + pg0, g1 + pg1, g2 + pg2, g3 + pg3
+                    k = note(near, k, j, w0, w1, w2, w3)
         q = o + i - i0
         out[0, q] = (a0 + a1) + (a2 + a3)
         out[1, q] = (b0 + b1) + (b2 + b3)
         out[2, q] = (n0 + n1) + (n2 + n3)
         if COH:
-            out[3, q] = (c0 + c1) + (c2 + c3)
-            out[4, q] = (d0 + d1) + (d2 + d3)
-            out[5, q] = (e0 + e1) + (e2 + e3)
-            out[6, q] = (f0 + f1) + (f2 + f3)
-            out[7, q] = (g0 + g1) + (g2 + g3)
+            cohere(buf, near, k, xi, yi, 0.0, coh, out, q)
 
 
-def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, coh, out, o):
+def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, coh, near, out, o):
     """:func:`wreduce_2d` in 3D; rows: heading sum (3), count, pull (3), push (3), core count."""
     for i in range(i0, i1):
         xi = x[i]
@@ -230,43 +281,29 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, co
         uz = hz[i]
         jr = np.uint64(6 + int(tag[i])) if CPL else np.uint64(0)
         a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = c0 = c1 = c2 = c3 = n0 = n1 = n2 = n3 = 0.0
-        px0 = px1 = px2 = px3 = py0 = py1 = py2 = py3 = pz0 = pz1 = pz2 = pz3 = 0.0
-        qx0 = qx1 = qx2 = qx3 = qy0 = qy1 = qy2 = qy3 = qz0 = qz1 = qz2 = qz3 = 0.0
-        k0 = k1 = k2 = k3 = 0.0
+        k = 0
         for r in range(ranges.shape[0]):
             lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                t0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh)
-                t1 = pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh)
-                t2 = pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh)
-                t3 = pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias, coh)
-                a0, a1, a2, a3 = a0 + t0[0], a1 + t1[0], a2 + t2[0], a3 + t3[0]
-                b0, b1, b2, b3 = b0 + t0[1], b1 + t1[1], b2 + t2[1], b3 + t3[1]
-                c0, c1, c2, c3 = c0 + t0[2], c1 + t1[2], c2 + t2[2], c3 + t3[2]
-                n0, n1, n2, n3 = n0 + t0[3], n1 + t1[3], n2 + t2[3], n3 + t3[3]
+                p0, q0, r0, w0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                p1, q1, r1, w1 = pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                p2, q2, r2_, w2 = pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                p3, q3, r3, w3 = pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
+                b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
+                c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
+                n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
                 if COH:
-                    px0, px1, px2, px3 = px0 + t0[4], px1 + t1[4], px2 + t2[4], px3 + t3[4]
-                    py0, py1, py2, py3 = py0 + t0[5], py1 + t1[5], py2 + t2[5], py3 + t3[5]
-                    pz0, pz1, pz2, pz3 = pz0 + t0[6], pz1 + t1[6], pz2 + t2[6], pz3 + t3[6]
-                    qx0, qx1, qx2, qx3 = qx0 + t0[7], qx1 + t1[7], qx2 + t2[7], qx3 + t3[7]
-                    qy0, qy1, qy2, qy3 = qy0 + t0[8], qy1 + t1[8], qy2 + t2[8], qy3 + t3[8]
-                    qz0, qz1, qz2, qz3 = qz0 + t0[9], qz1 + t1[9], qz2 + t2[9], qz3 + t3[9]
-                    k0, k1, k2, k3 = k0 + t0[10], k1 + t1[10], k2 + t2[10], k3 + t3[10]
+                    k = note(near, k, j, w0, w1, w2, w3)
         q = o + i - i0
         out[0, q] = (a0 + a1) + (a2 + a3)
         out[1, q] = (b0 + b1) + (b2 + b3)
         out[2, q] = (c0 + c1) + (c2 + c3)
         out[3, q] = (n0 + n1) + (n2 + n3)
         if COH:
-            out[4, q] = (px0 + px1) + (px2 + px3)
-            out[5, q] = (py0 + py1) + (py2 + py3)
-            out[6, q] = (pz0 + pz1) + (pz2 + pz3)
-            out[7, q] = (qx0 + qx1) + (qx2 + qx3)
-            out[8, q] = (qy0 + qy1) + (qy2 + qy3)
-            out[9, q] = (qz0 + qz1) + (qz2 + qz3)
-            out[10, q] = (k0 + k1) + (k2 + k3)
+            cohere(buf, near, k, xi, yi, zi, coh, out, q)
 
 
 # -- the sums of the search kernel --------------------------------------------------------
@@ -532,6 +569,7 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
     ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
     out = np.empty((4 if not COH else 12, 16))  # rows of the per-slot sums
+    near = np.empty(buf.shape[1] + 4 if COH else 0, dtype=np.uint64)  # wreduce_*'s scratch
     acc = np.zeros(partial.shape[1])
     while True:
         # units go to whichever thread is free: balanced when particles cluster or
@@ -545,6 +583,8 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
         else:
             line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
                                                                shifts, buf, rows, out, d)
+        if COH and near.shape[0] < buf.shape[1] + 4:
+            near = np.empty(buf.shape[1] + 4, dtype=np.uint64)
         # first the sums of every particle of the segment, then the updates in one
         # loop: its iterations are independent, so the processor overlaps their long
         # chains of dependent operations (it cannot across the reductions)
@@ -557,10 +597,10 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
                 reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
             elif d == 2:
                 wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0],
-                           tb.bias[0], tb.cohesion, out, start[c] - s0)
+                           tb.bias[0], tb.cohesion, near, out, start[c] - s0)
             else:
                 wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0],
-                           tb.bias[0], tb.cohesion, out, start[c] - s0)
+                           tb.bias[0], tb.cohesion, near, out, start[c] - s0)
         px = 0.0
         py = 0.0
         pz = 0.0
@@ -658,7 +698,7 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
 
 
 #: the functions compiled once per variant, callees first: each reads the flags as globals
-VARIANT = ("pair_2d", "pair_3d", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums", "nearest_sums",
+VARIANT = ("pair_2d", "pair_3d", "force", "cohere", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums", "nearest_sums",
            "remember", "advance", "add_moments", "line_units", "search_blocks")
 
 
