@@ -95,15 +95,22 @@ def assert_same_state(a, b, model, tol=1e-12):
     assert np.abs(a.headings - b.headings).max() < tol
 
 
-#: the 3D cases of the default suite: each other 3D case compiles kernels of its own (20 to
-#: 50 s on 2 cores), so they run with the slow tests (CI's second stage, .ci/run)
-DEFAULT_3D = ("walls", "topological", "cohesion-everything")
+#: the cases of the default suite beyond 2D with metric neighbours: each other case compiles
+#: kernels of its own (40 to 100 s each in the suite on 2 cores), so they run with the slow
+#: tests (CI's second stage, .ci/run). The default suite keeps every 2D case whose kernel is
+#: ``lines`` and the first case of each other kernel (``search`` with pair weights, 3D).
+DEFAULT_OTHERS = {("walls", 3), ("topological", 2), ("box-below-3R", 2), ("topological-delay-nematic", 2)}
 
 
 def every_case():
-    """Each case of :data:`EXTENSIONS` in 2D, then in 3D (slow unless in :data:`DEFAULT_3D`)."""
-    return [pytest.param(name, dim, id=f"{name}-{dim}",
-                         marks=() if dim == 2 or name in DEFAULT_3D else pytest.mark.slow)
+    """Each case of :data:`EXTENSIONS` in 2D, then in 3D (slow where its kernel is not
+    ``lines`` in 2D, unless in :data:`DEFAULT_OTHERS`)."""
+    def default(name, dim):
+        options = EXTENSIONS[name]
+        lines = dim == 2 and options.get("neighbours") != "topological" and "box" not in options
+        return lines or (name, dim) in DEFAULT_OTHERS
+
+    return [pytest.param(name, dim, id=f"{name}-{dim}", marks=() if default(name, dim) else pytest.mark.slow)
             for dim in (2, 3) for name in EXTENSIONS]
 
 
@@ -347,6 +354,8 @@ obstacle_models = st.builds(
     seed=st.integers(0, 2**31), neighbours=st.sampled_from(["metric", "topological"]))
 
 
+@pytest.mark.slow  # compiles the extended kernels in 2D and 3D, metric and topological (200 s in the
+# default suite); tests/test_geometry_promises.py keeps the promise in the default suite
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(kw=obstacle_models)
 def test_particles_never_inside_an_obstacle_or_outside_a_wall(kw):
