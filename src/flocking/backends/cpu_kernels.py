@@ -158,6 +158,8 @@ def note(near, k, j, w0, w1, w2, w3):
     near[k] = j + np.uint64(3)
     k += w3 != 0.0
     return k
+
+
 # These read the flags (CPL, NEM, CONE, COH) as globals: compiled per variant by build() and
 # inlined into its kernels, what a flag leaves out is never compiled.
 
