@@ -45,6 +45,7 @@ def cases(n: int, density: float, dim: int = 2) -> dict[str, dict]:
         for name in ("chirality 0.1", "walls, cone, chirality, field"):
             del found[name]
         found["every extension"].pop("chirality")
+        found["every extension"]["boundary"] = "periodic,periodic,wall"
         found["walls, cone, field"] = dict(boundary="wall", vision=2.1, field=field, field_strength=0.2)
     return found
 
