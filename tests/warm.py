@@ -1,0 +1,82 @@
+"""Compile the CPU kernels the default suite uses before its workers start, each once.
+
+A fresh checkout has no compiled kernels in numba's cache, and each of the suite's two
+pytest-xdist workers compiled every kernel its tests met first: the same kernel twice
+when both met it before either had cached it, and while one worker compiled the other's
+core often waited on a test that compiled too. Compiling each kernel (the variants of
+:func:`flocking.backends.cpu_kernels.variant` that the suite's tests run, 2D and 3D,
+``lines`` and ``search``) once, in as many processes as there are workers, before the
+tests, leaves the workers to load them from the cache (a second each). The conftest does
+it when the whole default suite runs on two or more workers; a run of chosen files
+compiles what it meets, as before.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import flocking
+
+SRC = os.path.dirname(os.path.dirname(flocking.__file__))
+
+#: one small model per kernel the default suite runs (kernel, variant of
+#: ``extended coupling nematic cone cohesion``), and the seconds its first step took to
+#: compile on the project's 2-core machine, one at a time, on 2026-11-26
+MODELS = [
+    (17, dict(n=50, box=6.0)),  # 2D lines 00000
+    (17, dict(n=50, box=6.0, boundary="wall")),  # 2D lines 10000
+    (58, dict(n=50, box=6.0, cohesion=0.5)),  # 2D lines 10001
+    (34, dict(n=50, box=6.0, vision=2.0)),  # 2D lines 11110
+    (61, dict(n=50, box=6.0, vision=2.0, cohesion=0.5)),  # 2D lines 11111
+    (18, dict(n=50, box=6.0, dim=3)),  # 3D lines 00000
+    (27, dict(n=50, box=6.0, dim=3, boundary="wall")),  # 3D lines 10000
+    (48, dict(n=50, box=6.0, dim=3, vision=2.0)),  # 3D lines 11110
+    (35, dict(n=50, box=6.0, neighbours="topological")),  # 2D search 00000
+    (50, dict(n=50, box=6.0, neighbours="topological", boundary="wall")),  # 2D search 10000
+    (61, dict(n=50, box=6.0, neighbours="topological", vision=2.0)),  # 2D search 11110
+    (56, dict(n=50, box=6.0, dim=3, neighbours="topological")),  # 3D search 00000
+]
+
+#: what each process runs: two steps of each model it is given
+CHILD = """
+import json, sys
+from flocking import Model, Simulation
+for kwargs in json.loads(sys.argv[1]):
+    Simulation(Model(**kwargs), backend="cpu").run(2)
+"""
+
+
+def shares(models: list[tuple[float, dict]], processes: int) -> list[list[dict]]:
+    """``models`` split into ``processes`` lists of about equal cost, longest first.
+
+    >>> shares([(3, {"a": 1}), (2, {"b": 2}), (2, {"c": 3})], 2)
+    [[{'a': 1}], [{'b': 2}, {'c': 3}]]
+    """
+    out: list[list[dict]] = [[] for _ in range(processes)]
+    cost = [0.0] * processes
+    for seconds, kwargs in sorted(models, key=lambda m: -m[0]):
+        p = cost.index(min(cost))
+        out[p].append(kwargs)
+        cost[p] += seconds
+    return out
+
+
+def compile_kernels(processes: int) -> tuple[float, list[str]]:
+    """Compile (or load) every kernel of :data:`MODELS` in ``processes`` processes at once;
+    the seconds it took and the errors of any process that failed (the tests then meet
+    the failure themselves)."""
+    start = time.perf_counter()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [SRC, os.environ.get("PYTHONPATH")]))}
+    procs = [subprocess.Popen([sys.executable, "-c", CHILD, json.dumps(share)], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE, text=True)
+             for share in shares(MODELS, processes) if share]
+    errors = []
+    for p in procs:
+        err = p.communicate()[1]
+        if p.returncode != 0:
+            errors.append((err.strip().splitlines() or [f"exit status {p.returncode}"])[-1])
+    return time.perf_counter() - start, errors
