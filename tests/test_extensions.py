@@ -100,15 +100,17 @@ def assert_same_state(a, b, model, tol=1e-12):
 #: tests (CI's second stage, .ci/run). The default suite keeps every 2D case whose kernel is
 #: ``lines`` and the first case of each other kernel (``search`` with pair weights, 3D).
 DEFAULT_OTHERS = {("walls", 3), ("topological", 2), ("box-below-3R", 2), ("topological-delay-nematic", 2)}
+#: ... but for this 2D ``lines`` case: cohesion with pair weights is a kernel no other default test needs
+SLOW_LINES = {("cohesion-everything", 2)}
 
 
 def every_case():
     """Each case of :data:`EXTENSIONS` in 2D, then in 3D (slow where its kernel is not
-    ``lines`` in 2D, unless in :data:`DEFAULT_OTHERS`)."""
+    ``lines`` in 2D, unless in :data:`DEFAULT_OTHERS`, and in :data:`SLOW_LINES`)."""
     def default(name, dim):
         options = EXTENSIONS[name]
         lines = dim == 2 and options.get("neighbours") != "topological" and "box" not in options
-        return lines or (name, dim) in DEFAULT_OTHERS
+        return (lines and (name, dim) not in SLOW_LINES) or (name, dim) in DEFAULT_OTHERS
 
     return [pytest.param(name, dim, id=f"{name}-{dim}", marks=() if default(name, dim) else pytest.mark.slow)
             for dim in (2, 3) for name in EXTENSIONS]
@@ -131,16 +133,20 @@ def test_cpu_matches_reference_step_by_step(dim, name):
             cpu = CPUBackend(model, ref.state)
 
 
-@pytest.mark.parametrize(("dim", "weighted"), [(2, True), (3, False)])
-def test_crowded_cells_by_a_wall_grow_the_buffer_and_match_reference(dim, weighted):
+WEIGHTS = dict(species=[{"fraction": 0.5}, {"fraction": 0.5}], coupling=[[1.0, -1.0], [0.5, 1.0]], vision=2.5,
+               alignment_rule="nematic")
+
+
+@pytest.mark.parametrize(("dim", "extra"), [
+    (2, WEIGHTS), (2, dict(cohesion=0.5)), (3, {}),
+    pytest.param(2, dict(WEIGHTS, cohesion=0.5), marks=pytest.mark.slow),  # a kernel of its own: see SLOW_LINES
+], ids=["2-weights", "2-cohesion", "3", "2-weights-cohesion"])
+def test_crowded_cells_by_a_wall_grow_the_buffer_and_match_reference(dim, extra):
     """Thousands of particles in one corner by the walls: the line kernel's candidate
     buffer (4096 entries to start with) must grow, no neighbour is seen across a wall, and
-    every sum matches, with pair weights (coupling, cone, nematic) and cohesion (its list of
-    the candidates that count grows with the buffer) and without."""
-    options = dict(boundary="wall")
-    if weighted:
-        options.update(species=[{"fraction": 0.5}, {"fraction": 0.5}], coupling=[[1.0, -1.0], [0.5, 1.0]],
-                       vision=2.5, alignment_rule="nematic", cohesion=0.5)
+    every sum matches, with pair weights (coupling, cone, nematic), with cohesion (its list
+    of the candidates that count grows with the buffer), with both, and without."""
+    options = dict(boundary="wall", **extra)
     model = make(dim, options).replace(n=5000, box=10.0 if dim == 2 else 5.0)
     state = State.random(model)
     state.positions[:4500] = np.random.default_rng(1).uniform(0.0, 0.9, size=(4500, dim))
@@ -402,22 +408,23 @@ def test_species_keep_their_particles_and_go_to_gsd_types(tmp_path):
     assert last[3] == pytest.approx(np.linalg.norm(u[90:].sum(axis=0)) / 210, abs=1e-12)
 
 
-def test_nematic_order_column_in_2d_and_3d(tmp_path):
-    for dim in (2, 3):
-        model = Model(dim=dim, n=200, box=6.0, alignment_rule="nematic", seed=1)
-        sim = Simulation(model)
-        csv = tmp_path / f"o{dim}.csv"
-        sim.writers.append(flocking.ObservablesWriter(csv))
-        sim.run(5)
-        rows = csv.read_text().splitlines()
-        assert rows[0] == "step,polar_order,nematic_order"
-        u = sim.state.headings
-        if dim == 2:
-            theta = np.arctan2(u[:, 1], u[:, 0])
-            expected = abs(np.exp(2j * theta).sum()) / len(u)
-        else:
-            expected = np.linalg.eigvalsh(1.5 * (u.T @ u) / len(u) - 0.5 * np.eye(3))[-1]
-        assert float(rows[-1].split(",")[2]) == pytest.approx(expected, abs=1e-12)
+# in 3D, a kernel (3D, pair weights) that no other default test needs: with the slow tests
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+def test_nematic_order_column_in_2d_and_3d(tmp_path, dim):
+    model = Model(dim=dim, n=200, box=6.0, alignment_rule="nematic", seed=1)
+    sim = Simulation(model)
+    csv = tmp_path / f"o{dim}.csv"
+    sim.writers.append(flocking.ObservablesWriter(csv))
+    sim.run(5)
+    rows = csv.read_text().splitlines()
+    assert rows[0] == "step,polar_order,nematic_order"
+    u = sim.state.headings
+    if dim == 2:
+        theta = np.arctan2(u[:, 1], u[:, 0])
+        expected = abs(np.exp(2j * theta).sum()) / len(u)
+    else:
+        expected = np.linalg.eigvalsh(1.5 * (u.T @ u) / len(u) - 0.5 * np.eye(3))[-1]
+    assert float(rows[-1].split(",")[2]) == pytest.approx(expected, abs=1e-12)
 
 
 def test_walls_and_obstacles_go_to_the_gsd_log(tmp_path):
