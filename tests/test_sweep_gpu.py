@@ -86,9 +86,10 @@ out["ensemble"] = [r.get("ensemble") for r in first.values()]
 out["records"] = {p.id: first[p.id] for p in points}
 
 # each point alone on the cuda backend (Simulation, the path of a single run): the same record
-alone = {p.id: run_point(task_of(p, "tiny", spec, None)) for p in points}
+# (two: one of each noise, one of each replica; each run here takes seconds)
+alone = {p.id: run_point(task_of(p, "tiny", spec, None)) for p in points[1:3]}
 out["alone"] = alone
-out["same_as_alone"] = without_time(first) == without_time(alone)
+out["same_as_alone"] = without_time({k: first[k] for k in alone}) == without_time(alone)
 
 # a rerun computes nothing and rewrites identical results
 whole = open_results("tiny").drop_vars("elapsed")
@@ -144,7 +145,8 @@ def simulated():
 
 def test_simulated_cuda_sweep_runs_one_ensemble_with_the_records_of_single_runs(simulated):
     """The four points share a shape, so they ran as one ensemble of four; each record is,
-    bit for bit, the one the same point gives run alone on the cuda backend."""
+    bit for bit, the one the same point gives run alone on the cuda backend (checked for
+    one point of each noise and each replica)."""
     assert simulated["cli"] == [0, ""]
     assert simulated["status"] == ["done"] * 4 and simulated["ensemble"] == [4] * 4
     assert simulated["same_as_alone"]
