@@ -1,9 +1,8 @@
 """Compile the CPU kernels the default suite uses before its workers start, each once.
 
 A fresh checkout has no compiled kernels in numba's cache, and each of the suite's two
-pytest-xdist workers compiled every kernel its tests met first: the same kernel twice
-when both met it before either had cached it, and while one worker compiled the other's
-core often waited on a test that compiled too. Compiling each kernel (the variants of
+pytest-xdist workers compiled every kernel its tests met first: a kernel that both met
+before either had cached it was compiled twice. Compiling each kernel (the variants of
 :func:`flocking.backends.cpu_kernels.variant` that the suite's tests run, 2D and 3D,
 ``lines`` and ``search``) once, in as many processes as there are workers, before the
 tests, leaves the workers to load them from the cache (a second each). The conftest does
