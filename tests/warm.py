@@ -36,7 +36,6 @@ MODELS = [
     (50, dict(n=50, box=6.0, neighbours="topological", boundary="wall")),  # 2D search 10000
     (61, dict(n=50, box=6.0, neighbours="topological", vision=2.0)),  # 2D search 11110
     (56, dict(n=50, box=6.0, dim=3, neighbours="topological")),  # 3D search 00000
-    (63, dict(n=50, box=6.0, dim=3, neighbours="topological", boundary="wall")),  # 3D search 10000
 ]
 
 
