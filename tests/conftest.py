@@ -29,6 +29,8 @@ def pytest_sessionstart(session):
     workers = getattr(config.option, "numprocesses", None)
     if hasattr(config, "workerinput") or config.args_source == pytest.Config.ArgsSource.ARGS:
         return
+    if config.option.collectonly:
+        return
     if not isinstance(workers, int) or workers < 2:
         return
     import warm
