@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 import flocking
 from flocking import Model, Simulation, State
-from flocking.backends.cpu import CPUBackend
+from flocking.backends.cpu import CPUBackend, kernel_name
 from flocking.backends.reference import ReferenceBackend
 from flocking.model import ParameterError
 from flocking.state import inside_obstacles
@@ -108,8 +108,7 @@ def every_case():
     """Each case of :data:`EXTENSIONS` in 2D, then in 3D (slow where its kernel is not
     ``lines`` in 2D, unless in :data:`DEFAULT_OTHERS`, and in :data:`SLOW_LINES`)."""
     def default(name, dim):
-        options = EXTENSIONS[name]
-        lines = dim == 2 and options.get("neighbours") != "topological" and "box" not in options
+        lines = dim == 2 and kernel_name(make(dim, EXTENSIONS[name])) == "lines"
         return (lines and (name, dim) not in SLOW_LINES) or (name, dim) in DEFAULT_OTHERS
 
     return [pytest.param(name, dim, id=f"{name}-{dim}", marks=() if default(name, dim) else pytest.mark.slow)
