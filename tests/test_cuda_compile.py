@@ -71,3 +71,52 @@ def test_kernels_compile_for_sm90(precision, dim, k, extended):
 @pytest.mark.parametrize("precision, dim, k, extended", MORE)
 def test_every_kernel_variant_compiles_for_sm90(precision, dim, k, extended):
     compile_case(precision, dim, k, extended)
+
+
+GATHER = r"""
+import subprocess, sys, tempfile, types
+import numba.cuda.dispatcher as dispatcher
+from numba import cuda
+dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
+from flocking.backends import cuda_kernels
+from flocking.backends.cuda_sort import Launch
+try:
+    cuda.compile_ptx(lambda a: None, "void(float64[:])", cc=(9, 0))
+except Exception as err:
+    print("NO-NVVM", type(err).__name__, err)
+    sys.exit(0)
+for precision in ("float32", "float64"):
+    for dim in (2, 3):
+        kernels = cuda_kernels.build(precision, dim, 0, Launch(256, 8, 8))
+        signature = cuda_kernels.signatures(precision, dim)["gather"]
+        ptx, _ = cuda.compile_ptx(kernels.gather.py_func, signature, cc=(9, 0))
+        with tempfile.NamedTemporaryFile("w", suffix=".ptx") as f:
+            f.write(ptx)
+            f.flush()
+            cap = f"-maxrregcount={cuda_kernels.GATHER_REGISTERS}"
+            out = subprocess.run(["ptxas", "-arch=sm_90", "-v", cap, f.name, "-o", "/dev/null"],
+                                 capture_output=True, text=True).stderr
+        print(precision, dim, out.replace("\n", " "))
+print("COMPILED")
+"""
+
+
+def test_plain_gather_fits_its_registers_without_spilling():
+    """The plain model's gather is capped at ``GATHER_REGISTERS`` registers (a copy bound by
+    memory, faster with every warp slot filled): ptxas must fit it there without spilling
+    to local memory, in both precisions and dimensions."""
+    import shutil
+
+    if SIMULATOR:
+        pytest.skip("the CUDA simulator is on in this process")
+    if shutil.which("ptxas") is None:
+        pytest.skip("no ptxas (the CUDA toolkit) here")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    out = subprocess.run([sys.executable, "-c", GATHER], capture_output=True, text=True, env=env, timeout=600)
+    if "NO-NVVM" in out.stdout:
+        pytest.skip("no NVVM here to compile CUDA kernels")
+    assert out.returncode == 0 and "COMPILED" in out.stdout, out.stdout[-2000:] + out.stderr[-4000:]
+    reports = [line for line in out.stdout.splitlines() if line.startswith("float")]
+    assert len(reports) == 4
+    for line in reports:
+        assert "0 bytes spill stores" in line and "0 bytes spill loads" in line, line

@@ -48,6 +48,7 @@ import functools
 import types
 import typing
 
+import numba
 import numpy as np
 from numba import cuda
 
@@ -251,9 +252,11 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     if K == 0:
         s = metric(i, cb, cur, start, p, tb, si)
     else:
+        # ids and slots fit int32 (``start`` is int32): 64-bit entries took 7 more
+        # registers for each, and a third fewer blocks per SM (topological 2D float32)
         bd = cuda.local.array(KA, REAL)
-        bi = cuda.local.array(KA, np.int64)
-        bs = cuda.local.array(KA, np.int64)
+        bi = cuda.local.array(KA, np.int32)
+        bs = cuda.local.array(KA, np.int32)
         s = nearest(i, cb, cur, start, p, tb, si, bd, bi, bs)
     gid = r * n + pid
     total = ONE + s[3]
@@ -456,6 +459,11 @@ def finish(partial, P, phi, clock, hist, tiles, tick):
 DEVICE = ('slot_of', 'x_ranges', 'row_of', 'plus', 'terms', 'metric', 'nearest', 'remember', 'move', 'block_sum')
 #: the kernels of a build
 KERNELS = ('step', 'cells', 'gather', 'finish')
+#: registers per thread of the plain model's ``gather``, a copy bound by memory: at 32, every
+#: warp slot of an SM can be filled (left to itself it took 38 to 40 in 2D, and 2D float32
+#: steps ran 1.5 % slower on an H200; docs/gpu.md). No spills at 32 (ptxas, sm_90); the
+#: extended models' gather would spill, and is left as it is.
+GATHER_REGISTERS = 32
 
 
 @functools.lru_cache(maxsize=None)
@@ -483,7 +491,9 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     for name in DEVICE:
         namespace[name] = cuda.jit(device=True)(rebind(globals()[name], namespace))
     for name in KERNELS:
-        namespace[name] = cuda.jit(rebind(globals()[name], namespace))
+        capped = name == "gather" and not EXT and not numba.config.ENABLE_CUDASIM  # the simulator has no registers
+        jit = cuda.jit(max_registers=GATHER_REGISTERS) if capped else cuda.jit
+        namespace[name] = jit(rebind(globals()[name], namespace))
     step, cells, gather, finish = (namespace[name] for name in KERNELS)
 
     return types.SimpleNamespace(real=real, step=step, cells=cells, gather=gather, finish=finish, sort=sort,
