@@ -22,7 +22,7 @@ import numpy as np
 from bench_cuda import timed
 
 import flocking
-from flocking.backends.cuda import CUDABackend
+from flocking.backends.cuda import CUDABackend, Engine
 
 #: steps per timed chunk and chunks (the median is taken) of every rate below
 STEPS, REPEATS = 20, 3
@@ -36,41 +36,23 @@ def sync_time(cuda, fn) -> float:
     return time.perf_counter() - t0
 
 
-def anatomy(label: str, backend, steps: int = 10) -> None:
-    """Print each kernel's median time in a step of ``backend`` (a CUDABackend or a cuda
-    Ensemble), then the rate of whole steps as it takes them."""
+def anatomy(label: str, engine: Engine, steps: int = 10) -> None:
+    """Print each kernel's median time in a step of ``engine`` (its launches, in order,
+    each timed alone), then the rate of whole steps as it takes them."""
     from numba import cuda
 
-    e = backend._engine
-    k = e._k
-    m = e.replicas * e.n
-    grid = -(-m // k.tile)
+    m = engine.replicas * engine.n
     acc: dict[str, list[float]] = {}
     for _ in range(steps):
-        parts = {"step": sync_time(cuda, lambda: k.step[e.replicas * e._qb, e._block](
-            e._pos, e._head, e._spd, e._ids, e._start, e._geom, e._ints, e._rp, e._rtau, e._rseed, e._clock,
-            e._ring, False, e._new_pos, e._new_head, e._new_ids, e._new_spd, e._rec, e._sp, e._bounds, e._cpl,
-            e._xr, e._obs))}
-        parts["digits"] = sync_time(cuda, lambda: k.digits[grid, k.block](e._rec, e._hist, m, e._passes,
-                                                                         e._clock, True))
-        src, dst = e._rec, e._rec2
-        for p in range(e._passes):
-            parts[f"scatter{p}"] = sync_time(cuda, lambda: k.scatter[grid, k.block](
-                src, dst, m, p, e._hist, e._status, e._tile_counter, e._clock))
-            src, dst = dst, src
-        parts["gather"] = sync_time(cuda, lambda: k.gather[e.replicas * e._qb, e._block](
-            src, e._new_pos, e._new_head, e._new_ids, e._new_spd, e._ints, e._pos, e._head, e._ids, e._spd,
-            e._start, e._partial, e._bounds))
-        parts["finish"] = sync_time(cuda, lambda: k.finish[e.replicas, e._block](
-            e._partial, e._ints, e._phi, e._clock, e._hist, e._tile_counter, True))
-        for key, v in parts.items():
-            acc.setdefault(key, []).append(v)
+        for name, launch in engine.launches():
+            acc.setdefault(name, []).append(sync_time(cuda, launch))
     med = {key: float(np.median(v)) for key, v in acc.items()}
     total = sum(med.values())
-    how = "as a graph" if e._graphs else "host launches"
-    whole = timed(backend.advance, STEPS, REPEATS, m)
-    print(f"{label}: M = {m}, {e.replicas * e._cells} cells, {e._passes} passes; kernels {total * 1e3:.3f} ms "
-          f"({m / total:.3e}/s); whole steps ({how}) {m / whole * 1e3:.3f} ms ({whole:.3e}/s)", flush=True)
+    how = "as a graph" if engine.graphs else "host launches"
+    whole = timed(engine.advance, STEPS, REPEATS, m)
+    passes = sum(name.startswith("scatter") for name in med)
+    print(f"{label}: M = {m}, {passes} passes; kernels {total * 1e3:.3f} ms ({m / total:.3e}/s); "
+          f"whole steps ({how}) {m / whole * 1e3:.3f} ms ({whole:.3e}/s)", flush=True)
     print("   " + "  ".join(f"{key} {v * 1e3:.3f} ms ({100 * v / total:.0f}%)" for key, v in med.items()), flush=True)
 
 
@@ -107,16 +89,16 @@ def main() -> None:
                                     ("3D float32", plain3, "float32"),
                                     ("2D float32, delay 10", plain2.replace(delay=10), "float32"),
                                     ("2D float32, k = 7", plain2.replace(neighbours="topological", k=7), "float32")]:
-        anatomy(label, CUDABackend(model, flocking.State.random(model), precision=precision, graphs=False))
+        anatomy(label, Engine([model], [flocking.State.random(model)], precision=precision, graphs=False))
     replicas = max(2, int(1024 * min(1.0, args.scale * 10)))
     models = [flocking.Model(n=1024, density=2.0, noise=float(eta), seed=r)
               for r, eta in enumerate(np.linspace(0.5, 4.0, replicas))]
     anatomy(f"{replicas} replicas of 1024, float32",
-            flocking.Ensemble(models, backend="cuda", precision="float32"))
+            Engine(models, [flocking.State.random(x) for x in models], precision="float32"))
     clustered = flocking.Model(n=max(int(1e6 * args.scale), 200), density=2.0, noise=0.3, seed=1)
     warm = CUDABackend(clustered, flocking.State.random(clustered))
     warm.advance(600)
-    anatomy("2D clustered (600 steps at noise 0.3), float64", CUDABackend(clustered, warm.state, graphs=False))
+    anatomy("2D clustered (600 steps at noise 0.3), float64", Engine([clustered], [warm.state], graphs=False))
     extension_rates(plain2)
     extension_rates(plain3)
 

@@ -52,7 +52,7 @@ from ..model import Model, ParameterError
 from ..observables import moment_width
 from ..state import State, frame_arrays
 from .cells import cell_grid
-from .cuda_sort import Launch, radix
+from .cuda_sort import Launch, radix_launches
 from .features import features, ring_width, tables
 
 PRECISIONS = ("float64", "float32")
@@ -288,24 +288,40 @@ class Engine:
             ring[:tau, r * n:(r + 1) * n] = saved
         self._ring.copy_to_device(ring)
 
-    def _launch_step(self, prime: bool = False, stream=0) -> None:
-        k = self._k
-        k.step[self.replicas * self._qb, self._block, stream](
-            self._cur, self._start, self._new, self._rec, self._P, self._rp, self._tables, self._clock, self._ring,
-            prime)
-        if not prime:
-            self._sort(tick=True, stream=stream)
+    def launches(self, prime: bool = False, tick: bool = True, stream=0) -> list:
+        """The kernel launches of one step, in order, each as ``(name, a function that
+        makes it)``: the step kernel, then the sort of its records by cell into the live
+        arrays, the cell starts and the moment sums (``gather``), and ``finish``. With
+        ``tick`` the step counter moves on and the polar order goes into its row; ``prime``
+        (filling the delay ring at the start) is the step kernel alone. :meth:`advance`
+        makes them one after another or replays them as a CUDA graph;
+        ``benchmarks/cuda_anatomy.py`` times each alone."""
+        k, block, grid = self._k, self._block, self.replicas * self._qb
+        out = [("step", lambda: k.step[grid, block, stream](self._cur, self._start, self._new, self._rec, self._P,
+                                                             self._rp, self._tables, self._clock, self._ring, prime))]
+        if prime:
+            return out
+        return out + self._sort_launches(tick, stream)
 
-    def _sort(self, tick: bool, stream=0) -> None:
+    def _sort_launches(self, tick: bool, stream=0) -> list:
+        k, block = self._k, self._block
+        sorting, src = radix_launches(k.sort, self._rec, self._rec2, self.replicas * self.n, self._passes,
+                                      self._hist, self._status, self._tile_counter, self._clock, tick, stream)
+        return sorting + [
+            ("gather", lambda: k.gather[self.replicas * self._qb, block, stream](
+                src, self._new, self._P, self._cur, self._start, self._partial, self._tables.bounds)),
+            ("finish", lambda: k.finish[self.replicas, block, stream](
+                self._partial, self._P, self._phi, self._clock, self._hist, self._tile_counter, tick))]
+
+    def _launch_step(self, prime: bool = False, stream=0) -> None:
+        for _, launch in self.launches(prime=prime, stream=stream):
+            launch()
+
+    def _sort(self, tick: bool) -> None:
         """Sort ``rec`` (id order) by cell into the live arrays; cell starts; with
         ``tick``, the step counter moves on and the polar order goes into its row."""
-        k, block = self._k, self._block
-        src = radix(k.sort, self._rec, self._rec2, self.replicas * self.n, self._passes, self._hist, self._status,
-                    self._tile_counter, self._clock, tick, stream)
-        k.gather[self.replicas * self._qb, block, stream](src, self._new, self._P, self._cur, self._start,
-                                                          self._partial, self._tables.bounds)
-        k.finish[self.replicas, block, stream](self._partial, self._P, self._phi, self._clock, self._hist,
-                                               self._tile_counter, tick)
+        for _, launch in self._sort_launches(tick):
+            launch()
 
     def _capture(self):
         """The launches of one step as a CUDA graph, or None where numba-cuda cannot
@@ -330,6 +346,11 @@ class Engine:
     @property
     def step(self) -> int:
         return self._step_count
+
+    @property
+    def graphs(self) -> bool:
+        """Whether steps are replayed as a captured CUDA graph (else launched from the host)."""
+        return self._graphs
 
     @property
     def rows(self) -> int:

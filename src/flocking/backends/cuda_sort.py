@@ -235,14 +235,24 @@ def build(launch: Launch) -> types.SimpleNamespace:
                                  digits_per_pass=DIGITS, tile=TILE, block=BLOCK, max_passes=PMAX, hist_size=HSIZE)
 
 
-def radix(k, rec, rec2, m: int, npass: int, hist, status, tiles, clock, tick: bool, stream=0):
-    """Sort ``rec[:m]`` by the upper 32 bits (``npass`` passes of the sort ``k`` from
-    :func:`build`, ``rec2`` the other buffer); the buffer that holds the result. With
-    ``tick``, ``digits`` moves the step counter ``clock[0]`` on."""
+def radix_launches(k, rec, rec2, m: int, npass: int, hist, status, tiles, clock, tick: bool, stream=0):
+    """The launches that sort ``rec[:m]`` by the upper 32 bits (``npass`` passes of the
+    sort ``k`` from :func:`build`, ``rec2`` the other buffer), in order, each as ``(name,
+    a function that makes it)``, and the buffer that will hold the result. With ``tick``,
+    ``digits`` moves the step counter ``clock[0]`` on."""
     grid = -(-m // k.tile)
-    k.digits[grid, k.block, stream](rec, hist, m, npass, clock, tick)
-    src, dst = rec, rec2
+    out = [("digits", lambda: k.digits[grid, k.block, stream](rec, hist, m, npass, clock, tick))]
+    bufs = (rec, rec2)
     for p in range(npass):
-        k.scatter[grid, k.block, stream](src, dst, m, p, hist, status, tiles, clock)
-        src, dst = dst, src
-    return src
+        src, dst = bufs[p % 2], bufs[(p + 1) % 2]
+        out.append((f"scatter{p}", lambda src=src, dst=dst, p=p: k.scatter[grid, k.block, stream](
+            src, dst, m, p, hist, status, tiles, clock)))
+    return out, bufs[npass % 2]
+
+
+def radix(k, rec, rec2, m: int, npass: int, hist, status, tiles, clock, tick: bool, stream=0):
+    """Sort ``rec[:m]`` as :func:`radix_launches` says; the buffer that holds the result."""
+    launches, result = radix_launches(k, rec, rec2, m, npass, hist, status, tiles, clock, tick, stream)
+    for _, launch in launches:
+        launch()
+    return result
