@@ -17,7 +17,8 @@ import pytest
 
 from gpu_marks import SIMULATOR
 
-SCRIPT = r"""
+#: what each script starts with: sm_90 without a device, and an exit where NVVM is missing
+PREAMBLE = r"""
 import sys, types
 import numba.cuda.dispatcher as dispatcher
 from numba import cuda
@@ -26,14 +27,17 @@ dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability
 from flocking.backends import cuda_kernels
 from flocking.backends.cuda_sort import Launch
 from flocking.backends.features import Features
-precision, dim, k, extended = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
-features = Features(True, True, True, True, True) if extended else Features()
-species = 2 if extended else 1
 try:
     cuda.compile_ptx(lambda a: None, "void(float64[:])", cc=(9, 0))
 except Exception as err:
     print("NO-NVVM", type(err).__name__, err)
     sys.exit(0)
+"""
+
+SCRIPT = PREAMBLE + r"""
+precision, dim, k, extended = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
+features = Features(True, True, True, True, True) if extended else Features()
+species = 2 if extended else 1
 kernels = cuda_kernels.build(precision, dim, k, Launch(256, 8, 8), features, species)
 for name, signature in cuda_kernels.signatures(precision, dim, species).items():
     kernel = getattr(kernels.sort if name in ("digits", "scatter") else kernels, name)
@@ -51,15 +55,21 @@ MORE = [(p, d, k, e) for p in ("float64", "float32") for d in (2, 3) for k in (0
         if (p, d, k, e) not in CASES]
 
 
-def compile_case(precision, dim, k, extended):
+def compiled(script: str, *args: str) -> str:
+    """Run ``script`` (:data:`PREAMBLE` and more) in a process without the simulator; its
+    output, once it has printed ``COMPILED`` (a skip where NVVM is missing)."""
     if SIMULATOR:
         pytest.skip("the CUDA simulator is on in this process")
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
-    out = subprocess.run([sys.executable, "-c", SCRIPT, precision, str(dim), str(k), "1" if extended else "0"],
-                         capture_output=True, text=True, env=env, timeout=900)
+    out = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True, env=env, timeout=900)
     if "NO-NVVM" in out.stdout:
         pytest.skip(f"no NVVM here to compile CUDA kernels ({out.stdout.strip()[8:][:120]})")
     assert out.returncode == 0 and "COMPILED" in out.stdout, out.stdout[-2000:] + out.stderr[-4000:]
+    return out.stdout
+
+
+def compile_case(precision, dim, k, extended):
+    compiled(SCRIPT, precision, str(dim), str(k), "1" if extended else "0")
 
 
 @pytest.mark.parametrize("precision, dim, k, extended", CASES)
@@ -73,18 +83,8 @@ def test_every_kernel_variant_compiles_for_sm90(precision, dim, k, extended):
     compile_case(precision, dim, k, extended)
 
 
-GATHER = r"""
-import subprocess, sys, tempfile, types
-import numba.cuda.dispatcher as dispatcher
-from numba import cuda
-dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
-from flocking.backends import cuda_kernels
-from flocking.backends.cuda_sort import Launch
-try:
-    cuda.compile_ptx(lambda a: None, "void(float64[:])", cc=(9, 0))
-except Exception as err:
-    print("NO-NVVM", type(err).__name__, err)
-    sys.exit(0)
+GATHER = PREAMBLE + r"""
+import subprocess, tempfile
 for precision in ("float32", "float64"):
     for dim in (2, 3):
         kernels = cuda_kernels.build(precision, dim, 0, Launch(256, 8, 8))
@@ -107,16 +107,9 @@ def test_plain_gather_fits_its_registers_without_spilling():
     to local memory, in both precisions and dimensions."""
     import shutil
 
-    if SIMULATOR:
-        pytest.skip("the CUDA simulator is on in this process")
     if shutil.which("ptxas") is None:
         pytest.skip("no ptxas (the CUDA toolkit) here")
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
-    out = subprocess.run([sys.executable, "-c", GATHER], capture_output=True, text=True, env=env, timeout=600)
-    if "NO-NVVM" in out.stdout:
-        pytest.skip("no NVVM here to compile CUDA kernels")
-    assert out.returncode == 0 and "COMPILED" in out.stdout, out.stdout[-2000:] + out.stderr[-4000:]
-    reports = [line for line in out.stdout.splitlines() if line.startswith("float")]
+    reports = [line for line in compiled(GATHER).splitlines() if line.startswith("float")]
     assert len(reports) == 4
     for line in reports:
         assert "0 bytes spill stores" in line and "0 bytes spill loads" in line, line
