@@ -234,6 +234,19 @@ def test_a_vision_cone_hides_exactly_the_particles_behind(backend, neighbours):
         assert out.headings[0] == pytest.approx(s / np.linalg.norm(s), abs=1e-12), vision
 
 
+def test_species_of_is_the_id_range_holding_the_particle():
+    """The one rule every kernel looks species up with: species are consecutive id ranges;
+    ``count`` (how many) bounds the search, a constant where a kernel is compiled for it."""
+    from flocking.rules import compile as compile_rules
+    from flocking.rules import physics
+
+    bounds = np.array([0, 3, 3, 10, 12], dtype=np.int64)  # the second species is empty
+    expected = np.searchsorted(bounds, np.arange(12), side="right") - 1
+    for species_of in (physics.species_of, compile_rules("cpu").species_of):
+        assert [species_of(pid, bounds, 4) for pid in range(12)] == list(expected)
+        assert [species_of(pid, bounds[:2], 1) for pid in range(12)] == [0] * 12
+
+
 @pytest.mark.parametrize("backend", ["cpu", "reference"])
 def test_coupling_minus_one_between_species(backend):
     species = [{"n": 1}, {"n": 1}]

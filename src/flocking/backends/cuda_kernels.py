@@ -48,7 +48,6 @@ import functools
 import types
 import typing
 
-import numba
 import numpy as np
 from numba import cuda
 
@@ -71,9 +70,9 @@ class Particles(typing.NamedTuple):
 
 class DeviceTables(typing.NamedTuple):
     """:class:`flocking.backends.features.Tables` on the device, in the run's float type,
-    for every replica: ``species`` ``(R, S, 4)``; ``bounds``, ``coupling``, ``field``,
-    ``cone``, ``cohesion`` as there; ``obstacles`` ``(max(M, 1), d + 1)`` (an unused row
-    when there are none)."""
+    for every replica: ``species`` ``(R, S, 4)``; ``bounds`` (int32, as the ids),
+    ``coupling``, ``field``, ``cone``, ``cohesion`` as there; ``obstacles``
+    ``(max(M, 1), d + 1)`` (an unused row when there are none)."""
 
     species: typing.Any
     bounds: typing.Any
@@ -150,7 +149,7 @@ def plus(s, t):
 def terms(i, j, dx, dy, dz, d2, inside, cur, tb, si, with_cone):
     """Neighbour candidate ``j`` of slot ``i`` by :func:`flocking.rules.physics.neighbour`."""
     head, coh = cur.head, tb.cohesion
-    coupling = tb.coupling[si, R.species_of(cur.ids[j], tb.bounds)] if CPL else ONE
+    coupling = tb.coupling[si, R.species_of(cur.ids[j], tb.bounds, NSPECIES)] if CPL else ONE
     uz = head[2, i] if DIM == 3 else ZERO
     vz = head[2, j] if DIM == 3 else ZERO
     return R.neighbour(DIM, dx, dy, dz, d2, inside, head[0, i], head[1, i], uz, head[0, j], head[1, j], vz,
@@ -248,7 +247,7 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
         return
     cb = r * p.cells
     pid = cur.ids[i]
-    si = R.species_of(pid, tb.bounds) if EXT else 0
+    si = R.species_of(pid, tb.bounds, NSPECIES) if EXT else 0
     if K == 0:
         s = metric(i, cb, cur, start, p, tb, si)
     else:
@@ -389,12 +388,13 @@ def gather(srt, new, P, cur, start, partial, bounds):
     p = P[0]
     n, ncells = p.n, p.cells
     tid = cuda.threadIdx.x
-    r, local, s = slot_of(n)
+    r, local, _ = slot_of(n)
     for a in range(WIDTH):
         buf[a, tid] = 0.0
     if local < n:
+        s = r * n + local  # here, not from slot_of: held over the loop above, 38-40 registers, not 32
         o = np.int64(srt[s] & LOW)
-        row = R.species_of(new.ids[o], bounds) * DIM if NSPECIES > 1 else 0
+        row = R.species_of(new.ids[o], bounds, NSPECIES) * DIM if NSPECIES > 1 else 0
         for a in range(DIM):
             cur.pos[a, s] = new.pos[a, o]
             cur.head[a, s] = new.head[a, o]
@@ -459,11 +459,6 @@ def finish(partial, P, phi, clock, hist, tiles, tick):
 DEVICE = ('slot_of', 'x_ranges', 'row_of', 'plus', 'terms', 'metric', 'nearest', 'remember', 'move', 'block_sum')
 #: the kernels of a build
 KERNELS = ('step', 'cells', 'gather', 'finish')
-#: registers per thread of the plain model's ``gather``, a copy bound by memory: at 32, every
-#: warp slot of an SM can be filled (left to itself it took 38 to 40 in 2D, and 2D float32
-#: steps ran 1.5 % slower on an H200; docs/gpu.md). No spills at 32 (ptxas, sm_90); the
-#: extended models' gather would spill, and is left as it is.
-GATHER_REGISTERS = 32
 
 
 @functools.lru_cache(maxsize=None)
@@ -491,9 +486,7 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     for name in DEVICE:
         namespace[name] = cuda.jit(device=True)(rebind(globals()[name], namespace))
     for name in KERNELS:
-        capped = name == "gather" and not EXT and not numba.config.ENABLE_CUDASIM  # the simulator has no registers
-        jit = cuda.jit(max_registers=GATHER_REGISTERS) if capped else cuda.jit
-        namespace[name] = jit(rebind(globals()[name], namespace))
+        namespace[name] = cuda.jit(rebind(globals()[name], namespace))
     step, cells, gather, finish = (namespace[name] for name in KERNELS)
 
     return types.SimpleNamespace(real=real, step=step, cells=cells, gather=gather, finish=finish, sort=sort,
@@ -515,14 +508,14 @@ def signatures(precision: str, dim: int, species: int = 1) -> dict[str, tuple]:
         return nt.Array(dt, nd, "C")
 
     particles = nt.NamedTuple([a(real, 2), a(real, 2), a(real, 1), a(i32, 1)], Particles)
-    tb = nt.NamedTuple([a(real, 3), a(i64, 1), a(real, 2), a(real, 1), a(real, 1), a(real, 1), a(real, 2)],
+    tb = nt.NamedTuple([a(real, 3), a(i32, 1), a(real, 2), a(real, 1), a(real, 1), a(real, 1), a(real, 2)],
                        DeviceTables)
     P = nt.Array(numpy_support.from_dtype(geometry_dtype(dtype)), 1, "C")
     rp = nt.Array(numpy_support.from_dtype(replica_dtype(dtype)), 1, "C")
     return {
         "step": (particles, a(i32, 1), particles, a(u64, 1), P, rp, tb, a(i64, 1), a(real, 3), b),
         "cells": (a(real, 2), P, a(u64, 1)),
-        "gather": (a(u64, 1), particles, P, particles, a(i32, 1), a(f64, 2), a(i64, 1)),
+        "gather": (a(u64, 1), particles, P, particles, a(i32, 1), a(f64, 2), a(i32, 1)),
         "finish": (a(f64, 2), P, a(f64, 3), a(i64, 1), a(i32, 1), a(i32, 1), b),
         "digits": (a(u64, 1), a(i32, 1), i64, i64, a(i64, 1), b),
         "scatter": (a(u64, 1), a(u64, 1), i64, i64, a(i32, 1), a(i64, 1), a(i32, 1), a(i64, 1)),

@@ -125,11 +125,13 @@ def update_3d(ux, uy, uz, sx, sy, sz, count, epsilon, eta, vectorial, seed, step
 
 
 
-def species_of(pid, bounds):
+def species_of(pid, bounds, count):
     """The species of particle ``pid``: species are contiguous id ranges, species ``s``
-    from ``bounds[s]`` to ``bounds[s + 1]`` (the last bound is ``N``)."""
+    from ``bounds[s]`` to ``bounds[s + 1]`` (the last bound is ``N``); ``count`` species
+    (``bounds`` has ``count + 1`` entries): a kernel that knows it when it is compiled
+    passes it as a constant, and its loop unrolls."""
     s = 0
-    while s + 2 < bounds.shape[0] and pid >= bounds[s + 1]:
+    while s + 1 < count and pid >= bounds[s + 1]:
         s += 1
     return s
 
