@@ -26,34 +26,35 @@ SRC = os.path.dirname(os.path.dirname(flocking.__file__))
 #: ``extended coupling nematic cone cohesion``), and the seconds its first step took to
 #: compile on the project's 2-core machine, one at a time, on 2026-11-26
 MODELS = [
-    (17, dict(n=50, box=6.0)),  # 2D lines 00000
-    (17, dict(n=50, box=6.0, boundary="wall")),  # 2D lines 10000
-    (58, dict(n=50, box=6.0, cohesion=0.5)),  # 2D lines 10001
-    (34, dict(n=50, box=6.0, vision=2.0)),  # 2D lines 11110
-    (18, dict(n=50, box=6.0, dim=3)),  # 3D lines 00000
-    (27, dict(n=50, box=6.0, dim=3, boundary="wall")),  # 3D lines 10000
-    (35, dict(n=50, box=6.0, neighbours="topological")),  # 2D search 00000
-    (50, dict(n=50, box=6.0, neighbours="topological", boundary="wall")),  # 2D search 10000
-    (61, dict(n=50, box=6.0, neighbours="topological", vision=2.0)),  # 2D search 11110
-    (56, dict(n=50, box=6.0, dim=3, neighbours="topological")),  # 3D search 00000
+    (17, dict(n=50, box=6.0)),  # lines_2d_00000
+    (17, dict(n=50, box=6.0, boundary="wall")),  # lines_2d_10000
+    (58, dict(n=50, box=6.0, cohesion=0.5)),  # lines_2d_10001
+    (34, dict(n=50, box=6.0, vision=2.0)),  # lines_2d_11110
+    (18, dict(n=50, box=6.0, dim=3)),  # lines_3d_00000
+    (27, dict(n=50, box=6.0, dim=3, boundary="wall")),  # lines_3d_10000
+    (35, dict(n=50, box=6.0, neighbours="topological")),  # search_2d_00000
+    (50, dict(n=50, box=6.0, neighbours="topological", boundary="wall")),  # search_2d_10000
+    (61, dict(n=50, box=6.0, neighbours="topological", vision=2.0)),  # search_2d_11110
+    (56, dict(n=50, box=6.0, dim=3, neighbours="topological")),  # search_3d_00000
 ]
 
 
 def kernel_of(kwargs: dict) -> str:
-    """The kernel a model of ``kwargs`` runs on the cpu backend: each of :data:`MODELS` its own.
+    """The kernel a model of ``kwargs`` runs on the cpu backend, as numba's cache names it:
+    each of :data:`MODELS` its own.
 
     >>> kernel_of(MODELS[2][1])
-    '2D lines 10001'
+    'lines_2d_10001'
     >>> len({kernel_of(kwargs) for _, kwargs in MODELS}) == len(MODELS)
     True
     """
     from flocking import Model
     from flocking.backends.cpu import kernel_name
-    from flocking.backends.cpu_kernels import variant
+    from flocking.backends.cpu_kernels import cache_tag, variant
     from flocking.backends.features import features
 
     model = Model(**kwargs)
-    return f"{model.dim}D {kernel_name(model)} " + "".join("1" if on else "0" for on in variant(features(model)))
+    return f"{kernel_name(model)}_{cache_tag(variant(features(model)), model.dim)}"
 
 
 #: what each process runs: two steps of each model it is given

@@ -700,8 +700,8 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
 
 
 #: the functions compiled once per variant, callees first: each reads the flags as globals
-VARIANT = ("pair_2d", "pair_3d", "force", "cohere", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums", "nearest_sums",
-           "remember", "advance", "add_moments", "line_units", "search_blocks")
+VARIANT = ("pair_2d", "pair_3d", "force", "cohere", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums",
+           "nearest_sums", "remember", "advance", "add_moments", "line_units", "search_blocks")
 
 
 def variant(features: Features) -> Features:
@@ -722,6 +722,16 @@ def variant(features: Features) -> Features:
     if not (features.coupling or features.nematic or features.cone):
         return features
     return features._replace(coupling=True, nematic=True, cone=True)
+
+
+def cache_tag(features: Features, dim: int) -> str:
+    """What names the kernels :func:`build` compiles for ``features`` in ``dim`` dimensions
+    in numba's cache: the dimension and a bit per feature.
+
+    >>> cache_tag(Features(extended=True, cohesion=True), 2)
+    '2d_10001'
+    """
+    return f"{dim}d_" + "".join("1" if on else "0" for on in features)
 
 
 @functools.lru_cache(maxsize=None)
@@ -747,7 +757,7 @@ def build(features: Features, dim: int) -> types.SimpleNamespace:
     namespace = {**globals(), **flags}
     for name in VARIANT:
         namespace[name] = numba.njit(inline="always")(rebind(globals()[name], namespace))
-    tag = f"{dim}d_" + "".join("1" if on else "0" for on in features)
+    tag = cache_tag(features, dim)
     kernels = {name: numba.njit(cache=True, parallel=True)(rebind(globals()[name], namespace, f"{name}_{tag}"))
                for name in ("lines", "search")}
     return types.SimpleNamespace(**kernels, features=features)
