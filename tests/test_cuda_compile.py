@@ -86,7 +86,8 @@ def test_every_kernel_variant_compiles_for_sm90(precision, dim, k, extended):
 GATHER = PREAMBLE + r"""
 import subprocess, tempfile
 # the plain model's gather; then that of two species with a coupling and nematic alignment,
-# as bench_cuda.py's case "every extension" compiles it
+# as bench_cuda.py's cases "extensions" and "extensions-but-cohesion" compile it (cohesion
+# adds nothing to the gather)
 every = Features(extended=True, coupling=True, nematic=True, cone=True)
 for label, features, species, precision, dim in (
         [("plain", Features(), 1, p, d) for p in ("float32", "float64") for d in (2, 3)]
