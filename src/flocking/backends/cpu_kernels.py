@@ -308,6 +308,13 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, co
             cohere(buf, near, k, xi, yi, zi, coh, out, q)
 
 
+@numba.njit(cache=True, inline="always")
+def species(pid, bounds):
+    """:func:`flocking.rules.physics.species_of` with as many species as ``bounds`` has
+    ranges (the CPU kernels are not compiled per count of species)."""
+    return R.species_of(pid, bounds, bounds.shape[0] - 1)
+
+
 # -- the sums of the search kernel --------------------------------------------------------
 
 
@@ -317,7 +324,7 @@ def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, cone):
     dimension, a constant of the kernel)."""
     d = DIM
     coh = tb.cohesion
-    coupling = tb.coupling[si, R.species_of(ids[j], tb.bounds, tb.bounds.shape[0] - 1)] if CPL else 1.0
+    coupling = tb.coupling[si, species(ids[j], tb.bounds)] if CPL else 1.0
     return R.neighbour(d, dx, dy, dz, d2, inside, head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, head[0, j],
                        head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, tb.bias[0], cone, tb.cone[0], COH,
                        coh[1], coh[2], coh[3], coh[4])
@@ -456,7 +463,7 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
         sx, sy, sz, core = R.cohesive_sum(sx, sy, sz, s[4], s[5], s[6], s[7], s[8], s[9], s[10], tb.cohesion[0])
     vectorial = p.vectorial
     if EXT:
-        si = R.species_of(pid, tb.bounds, tb.bounds.shape[0] - 1)
+        si = species(pid, tb.bounds)
         eta, epsilon, turn, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 2], tb.species[si, 3]
         if core:  # an infinite repulsion drowns the field and vectorial noise
             h = 0.0
@@ -510,7 +517,7 @@ def add_moments(acc, wx, wy, wz, pid, bounds):
     """Slot's new heading into the moment sums ``acc``: its species' ``sum u``, then the
     nematic products (:mod:`flocking.observables`)."""
     d = DIM
-    o = R.species_of(pid, bounds, bounds.shape[0] - 1) * d
+    o = species(pid, bounds) * d
     acc[o] += wx
     acc[o + 1] += wy
     if d == 3:
@@ -540,7 +547,7 @@ def lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
     cols = np.empty((tb.coupling.shape[0] if CPL else 0, n))
     if CPL:
         for i in numba.prange(n):
-            s = R.species_of(ids[i], tb.bounds, tb.bounds.shape[0] - 1)
+            s = species(ids[i], tb.bounds)
             tag[i] = s
             for a in range(cols.shape[0]):
                 cols[a, i] = tb.coupling[a, s]
@@ -677,7 +684,7 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
             acc[:] = 0.0
         while c < ncells and start[c] < s1:
             for i in range(max(start[c], s0), min(start[c + 1], s1)):
-                si = R.species_of(ids[i], tb.bounds, tb.bounds.shape[0] - 1) if CPL else 0
+                si = species(ids[i], tb.bounds) if CPL else 0
                 if k == 0:
                     s = metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si)
                 else:
