@@ -161,7 +161,8 @@ def metric(i, cb, cur, start, p, tb, si):
     by ``s*`` (``2L`` across a wall: out of reach); an axis of fewer than three cells
     takes the minimum image per pair."""
     pos = cur.pos
-    nc0, nc1, nc2 = p.nc0, p.nc1, p.nc2
+    # read once: a record field read in the candidate loop is a load from memory there
+    nc0, nc1, nc2, r2 = p.nc0, p.nc1, p.nc2, p.r2
     xi, yi = pos[0, i], pos[1, i]
     zi = pos[2, i] if DIM == 3 else ZERO
     cx, cy = R.cell_index(xi, p.inv0, nc0), R.cell_index(yi, p.inv1, nc1)
@@ -198,7 +199,7 @@ def metric(i, cb, cur, start, p, tb, si):
                         else:
                             dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2)
                         d2 += dz * dz
-                    t = terms(i, j, dx, dy, dz, d2, d2 < p.r2, cur, tb, si, CONE)
+                    t = terms(i, j, dx, dy, dz, d2, d2 < r2, cur, tb, si, CONE)
                     if t[3] != ZERO:
                         s = plus(s, t)
     return s
