@@ -493,10 +493,10 @@ def device_tables(models: Sequence[Model], real) -> tuple[np.ndarray, ...]:
     """The fields of :class:`flocking.backends.cuda_kernels.DeviceTables` for replicas
     ``models`` (which share :data:`SHARED`), from :func:`flocking.backends.features.tables`,
     converted to ``real``: the species' values per replica ``(R, S, 4)``, then the first
-    model's bounds (int32, as the ids: held in registers for the species look-up of
-    every neighbour, 64-bit bounds cost the extended steps up to 12 more), coupling, field, cone,
-    cohesion and obstacles (an unused row when there are none). The plain model's
-    kernels take them and read none."""
+    model's bounds (int32, as the ids: held in registers for the species look-up of every
+    neighbour, 64-bit bounds cost the extended steps up to 12 more registers), coupling,
+    field, cone, cohesion and obstacles (an unused row when there are none). The plain
+    model's kernels take them and read none."""
     each = [tables(x) for x in models]
     first = each[0]
     obstacles = first.obstacles if len(first.obstacles) else np.zeros((1, models[0].dim + 1))
