@@ -192,3 +192,18 @@ def test_the_shared_weighted_variant_gives_the_bits_of_a_variant_of_its_own(exte
     assert np.array_equal(shared.advance(20), own.advance(20))
     assert np.array_equal(shared.state.positions, own.state.positions)
     assert np.array_equal(shared.state.headings, own.state.headings)
+
+
+def test_noting_a_group_keeps_exactly_the_candidates_that_count_in_order():
+    # cohesion's lanes note a group of four through a table of masks: every mask, after
+    # an earlier group, must leave near[:k] the candidates whose count is not 0, in order,
+    # and the earlier entries untouched
+    from flocking.backends.cpu_kernels import note
+
+    for mask in range(16):
+        w = [float(mask >> lane & 1) for lane in range(4)]
+        near = np.full(12, 99, dtype=np.uint64)
+        k = note(near, np.uint64(0), np.uint64(4), 1.0, 0.0, 0.0, 1.0)
+        k = note(near, k, np.uint64(40), *w)
+        assert k == 2 + sum(w)
+        assert near[:k].tolist() == [4, 7] + [40 + lane for lane in range(4) if w[lane]]

@@ -53,6 +53,7 @@ from .cells import ALL, U1
 from .features import Features
 
 R = compile_rules("cpu")
+U0 = np.uint64(0)
 
 # The flags of a variant: what it compiles in (Features) and its dimension. The functions
 # that read them are plain Python here; build() compiles a copy of them per variant with the
@@ -144,20 +145,32 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
 # -- weighted neighbour sums (pair weights, cohesion) ---------------------------------------
 
 
+# For each 4-bit mask of a group of four candidates (bit l: candidate l counts): the lanes
+# whose bit is set, in order, then zeros; and how many are set. With them note() writes a
+# group as four neighbouring entries (one vector store) and advances its index once,
+# instead of four stores each at an index that the one before advanced.
+COMPACT = np.array([[l for l in range(4) if m >> l & 1] + [0] * (4 - bin(m).count("1")) for m in range(16)],
+                   dtype=np.uint64)
+COUNT = np.array([bin(m).count("1") for m in range(16)], dtype=np.uint64)
+
+
 @numba.njit(cache=True, inline="always")
 def note(near, k, j, w0, w1, w2, w3):
-    """Note candidates ``j .. j + 3`` in ``near`` from ``near[k]`` on, each kept only if
-    its count ``w`` is not 0 (stored whatever it is; the index advances by its count):
-    returns the new ``k``."""
-    near[k] = j
-    k += w0 != 0.0
-    near[k] = j + U1
-    k += w1 != 0.0
-    near[k] = j + np.uint64(2)
-    k += w2 != 0.0
-    near[k] = j + np.uint64(3)
-    k += w3 != 0.0
-    return k
+    """Note those of candidates ``j .. j + 3`` whose count ``w`` is not 0 in ``near``
+    from ``near[k]`` on, in order (``near[k .. k + 3]`` are written whatever counts):
+    returns the new ``k``.
+
+    >>> near = np.zeros(8, dtype=np.uint64)
+    >>> k = note(near, U0, np.uint64(20), 1.0, 0.0, 1.0, 1.0)
+    >>> int(k), near[:k].tolist()
+    (3, [20, 22, 23])
+    """
+    m = (w0 != 0.0) + 2 * (w1 != 0.0) + 4 * (w2 != 0.0) + 8 * (w3 != 0.0)
+    near[k] = j + COMPACT[m, 0]
+    near[k + U1] = j + COMPACT[m, 1]
+    near[k + np.uint64(2)] = j + COMPACT[m, 2]
+    near[k + np.uint64(3)] = j + COMPACT[m, 3]
+    return k + COUNT[m]
 
 
 # These read the flags (CPL, NEM, CONE, COH) as globals: compiled per variant by build() and
@@ -190,9 +203,9 @@ def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias):
 
 def force(buf, near, m, k, xi, yi, zi, coh):
     """:func:`flocking.rules.physics.cohesion_term` of candidate ``near[m]`` of the buffer,
-    or zeros if ``m >= k``."""
+    or zeros if ``m >= k`` (``near[m]`` is then a copy of ``near[0]``, see :func:`cohere`)."""
     inside = m < k
-    j = near[m if inside else 0]
+    j = near[m]
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi if DIM == 3 else 0.0
@@ -208,11 +221,13 @@ def cohere(buf, near, k, xi, yi, zi, coh, out, q):
     px0 = px1 = px2 = px3 = py0 = py1 = py2 = py3 = pz0 = pz1 = pz2 = pz3 = 0.0
     qx0 = qx1 = qx2 = qx3 = qy0 = qy1 = qy2 = qy3 = qz0 = qz1 = qz2 = qz3 = 0.0
     c0 = c1 = c2 = c3 = 0.0
-    for m in range(0, k, 4):
+    # a last, partial group reads a real candidate, weighed by 0 (k > 0 whenever the loop runs)
+    near[k] = near[k + U1] = near[k + np.uint64(2)] = near[U0]
+    for m in range(U0, k, np.uint64(4)):
         t0 = force(buf, near, m, k, xi, yi, zi, coh)
-        t1 = force(buf, near, m + 1, k, xi, yi, zi, coh)
-        t2 = force(buf, near, m + 2, k, xi, yi, zi, coh)
-        t3 = force(buf, near, m + 3, k, xi, yi, zi, coh)
+        t1 = force(buf, near, m + U1, k, xi, yi, zi, coh)
+        t2 = force(buf, near, m + np.uint64(2), k, xi, yi, zi, coh)
+        t3 = force(buf, near, m + np.uint64(3), k, xi, yi, zi, coh)
         px0, px1, px2, px3 = px0 + t0[0], px1 + t1[0], px2 + t2[0], px3 + t3[0]
         py0, py1, py2, py3 = py0 + t0[1], py1 + t1[1], py2 + t2[1], py3 + t3[1]
         qx0, qx1, qx2, qx3 = qx0 + t0[3], qx1 + t1[3], qx2 + t2[3], qx3 + t3[3]
@@ -231,8 +246,8 @@ def cohere(buf, near, k, xi, yi, zi, coh, out, q):
 
 # The weighed sums keep one scalar per lane and quantity, like the plain ones: held in
 # tuples, the lanes were not packed into SIMD registers (three times slower per candidate).
-# Cohesion is not summed in the lanes: they note the candidates that count (``near``, a
-# store at every candidate and an index that advances by the count, no branch), and
+# Cohesion is not summed in the lanes: they note the candidates that count (``near``:
+# :func:`note`, a group of four at a time, no branch), and
 # :func:`cohere` sums over those alone: its square root, division and piecewise force for
 # the few within reach, not for every candidate, and no more registers in the lanes.
 
@@ -249,7 +264,7 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, near
         uy = hy[i]
         jr = np.uint64(4 + int(tag[i])) if CPL else np.uint64(0)
         a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = n0 = n1 = n2 = n3 = 0.0
-        k = 0
+        k = U0
         for r in range(ranges.shape[0]):
             lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
             m4 = hi - (hi - lo) % np.uint64(4)
@@ -283,7 +298,7 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, co
         uz = hz[i]
         jr = np.uint64(6 + int(tag[i])) if CPL else np.uint64(0)
         a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = c0 = c1 = c2 = c3 = n0 = n1 = n2 = n3 = 0.0
-        k = 0
+        k = U0
         for r in range(ranges.shape[0]):
             lo, hi = np.uint64(ranges[r, 0]), np.uint64(ranges[r, 1])
             m4 = hi - (hi - lo) % np.uint64(4)
