@@ -51,3 +51,21 @@ def test_cuda_anatomy_times_the_launches_that_make_a_step():
     assert all(name.startswith("scatter") for name in names[2:-2]) and len(names) > 4
     report = next(line for line in out.stdout.splitlines() if line.startswith("tiny: M = 64"))
     assert "host launches" in report
+
+
+@pytest.mark.slow
+def test_same_process_compares_a_tree_with_itself(tmp_path):
+    """``benchmarks/same_process.py`` imports a tree twice under names of its own and
+    reports, per copy, the case's rate against the plain model and its speed against the
+    first copy (1 for the first; timings of a tiny system say nothing more)."""
+    out = subprocess.run([sys.executable, "benchmarks/same_process.py", "src", "src", "--cases", "vision 2.1",
+                          "--n", "3000", "--rounds", "3", "--steps", "1"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=900, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})
+    assert out.returncode == 0, out.stderr[-3000:]
+    rows = [line.split() for line in out.stdout.splitlines() if line.startswith("src ")]
+    assert len(rows) == 2 and all(row[1:3] == ["vision", "2.1"] for row in rows)
+    assert float(rows[0][-1]) == 1.0 and float(rows[1][-1]) > 0.0
+    assert all(float(row[5]) > 0.0 for row in rows)
+    bad = subprocess.run([sys.executable, "benchmarks/same_process.py", "src", "--cases", "gravity"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--cases: 'gravity' is not one of" in bad.stderr
