@@ -12,6 +12,14 @@ the machine hits the numbers it divides alike::
     python benchmarks/same_process.py /tmp/before/src src --cases cohesion --rounds 40
     python benchmarks/same_process.py /tmp/before/src src --cases cohesion --dim 3
 
+A model that changes the state changes what its step costs: cohesion gathers the particles
+(2D, N = 10^5, density 2: 6.3 neighbours within ``R`` a particle at the start, 12.0 after 20
+steps, 13.7 after 200), while the plain model stays near 6.3. ``--same-state STEPS`` steps
+every model of every tree, each round, from one state, the last case's after ``STEPS`` steps,
+so that only the kernels differ::
+
+    python benchmarks/same_process.py /tmp/before/src src --cases cohesion --same-state 60
+
 Prints, per tree and case, the median (and quartiles) of ``plain time / case time`` (the
 rate of the case against the plain model's) and the median of ``case time in the first
 tree / case time in this tree`` (its speed against the first tree). Cases are those of
@@ -56,6 +64,9 @@ def main(argv=None) -> None:
     parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
     parser.add_argument("--steps", type=int, default=5, help="steps per case and round")
     parser.add_argument("--rounds", type=int, default=40)
+    parser.add_argument("--same-state", type=int, default=0, metavar="STEPS",
+                        help="restart every model, each round, from the last case's state after STEPS steps "
+                             "(0: each model goes on from its own state)")
     args = parser.parse_args(argv)
     known = extension_cases(args.n, args.density, args.dim)
     names = ["plain"] + [c for c in args.cases.split(",") if c != "plain"]
@@ -63,20 +74,34 @@ def main(argv=None) -> None:
         if name not in known:
             parser.error(f"--cases: {name!r} is not one of {', '.join(known)}")
     side = (args.n / args.density) ** (1.0 / args.dim)
+    if args.same_state < 0:
+        parser.error(f"--same-state: {args.same_state} is not a number of steps (0 or more)")
     with tempfile.TemporaryDirectory() as folder:
-        runs = {}
+        runs, start_from = {}, None
         for t, (package, cpu) in enumerate(load(args.trees, folder)):
             for name in names:
                 model = package.Model(n=args.n, dim=args.dim, box=side, seed=1, **known[name])
                 runs[t, name] = cpu.CPUBackend(model, package.State.random(model))
                 runs[t, name].advance(2)  # compiled (or loaded) before timing
+            if args.same_state and start_from is None:
+                first = runs[t, names[-1]]
+                first.advance(args.same_state)
+                state = first.state
+                start_from = (state.positions.copy(), state.headings.copy(), state.speeds.copy(), state.step)
         times = {key: [] for key in runs}
         for _ in range(args.rounds):
             for key, backend in runs.items():
+                if start_from is not None:  # one state for all: the kernels' cost alone is compared
+                    package = sys.modules[type(backend.model).__module__.split(".")[0]]
+                    positions, headings, speeds, step = start_from
+                    backend = type(backend)(backend.model, package.State(positions.copy(), headings.copy(),
+                                                                         speeds.copy(), step))
                 start = time.perf_counter()
                 backend.advance(args.steps)
                 times[key].append(time.perf_counter() - start)
-    print(f"{args.dim}D, N = {args.n}, density {args.density}, {args.rounds} rounds of {args.steps} steps, "
+    where = (f", every round from the state of {names[-1]!r} after {args.same_state} steps" if args.same_state
+             else "")
+    print(f"{args.dim}D, N = {args.n}, density {args.density}, {args.rounds} rounds of {args.steps} steps{where}, "
           f"{os.environ.get('NUMBA_NUM_THREADS', 'all')} threads")
     for t, tree in enumerate(args.trees):
         for name in names[1:]:

@@ -69,3 +69,14 @@ def test_same_process_compares_a_tree_with_itself(tmp_path):
     bad = subprocess.run([sys.executable, "benchmarks/same_process.py", "src", "--cases", "gravity"], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "--cases: 'gravity' is not one of" in bad.stderr
+    same = subprocess.run([sys.executable, "benchmarks/same_process.py", "src", "--cases", "vision 2.1", "--n",
+                           "3000", "--rounds", "2", "--steps", "1", "--same-state", "3"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=900,
+                          env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})
+    assert same.returncode == 0, same.stderr[-3000:]
+    assert "every round from the state of 'vision 2.1' after 3 steps" in same.stdout
+    assert [line.split()[1:3] for line in same.stdout.splitlines() if line.startswith("src ")] == [["vision", "2.1"]]
+    bad = subprocess.run([sys.executable, "benchmarks/same_process.py", "src", "--same-state", "-1"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].endswith(
+        "--same-state: -1 is not a number of steps (0 or more)")
