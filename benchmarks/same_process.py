@@ -78,7 +78,8 @@ def main(argv=None) -> None:
         parser.error(f"--same-state: {args.same_state} is not a number of steps (0 or more)")
     with tempfile.TemporaryDirectory() as folder:
         runs, start_from = {}, None
-        for t, (package, cpu) in enumerate(load(args.trees, folder)):
+        packages = load(args.trees, folder)
+        for t, (package, cpu) in enumerate(packages):
             for name in names:
                 model = package.Model(n=args.n, dim=args.dim, box=side, seed=1, **known[name])
                 runs[t, name] = cpu.CPUBackend(model, package.State.random(model))
@@ -92,10 +93,10 @@ def main(argv=None) -> None:
         for _ in range(args.rounds):
             for key, backend in runs.items():
                 if start_from is not None:  # one state for all: the kernels' cost alone is compared
-                    package = sys.modules[type(backend.model).__module__.split(".")[0]]
+                    package, cpu = packages[key[0]]
                     positions, headings, speeds, step = start_from
-                    backend = type(backend)(backend.model, package.State(positions.copy(), headings.copy(),
-                                                                         speeds.copy(), step))
+                    backend = cpu.CPUBackend(backend.model, package.State(positions.copy(), headings.copy(),
+                                                                          speeds.copy(), step))
                 start = time.perf_counter()
                 backend.advance(args.steps)
                 times[key].append(time.perf_counter() - start)
