@@ -77,26 +77,23 @@ def main(argv=None) -> None:
     if args.same_state < 0:
         parser.error(f"--same-state: {args.same_state} is not a number of steps (0 or more)")
     with tempfile.TemporaryDirectory() as folder:
-        runs, start_from = {}, None
+        runs = {}
         packages = load(args.trees, folder)
         for t, (package, cpu) in enumerate(packages):
             for name in names:
                 model = package.Model(n=args.n, dim=args.dim, box=side, seed=1, **known[name])
                 runs[t, name] = cpu.CPUBackend(model, package.State.random(model))
                 runs[t, name].advance(2)  # compiled (or loaded) before timing
-            if args.same_state and start_from is None:
-                first = runs[t, names[-1]]
-                first.advance(args.same_state)
-                state = first.state
-                start_from = (state.positions.copy(), state.headings.copy(), state.speeds.copy(), state.step)
+        starts = None
+        if args.same_state:  # one state for all, in each tree's own State (a backend copies what it is given)
+            runs[0, names[-1]].advance(args.same_state)
+            s = runs[0, names[-1]].state
+            starts = [package.State(s.positions, s.headings, s.speeds, s.step) for package, _ in packages]
         times = {key: [] for key in runs}
         for _ in range(args.rounds):
             for key, backend in runs.items():
-                if start_from is not None:  # one state for all: the kernels' cost alone is compared
-                    package, cpu = packages[key[0]]
-                    positions, headings, speeds, step = start_from
-                    backend = cpu.CPUBackend(backend.model, package.State(positions.copy(), headings.copy(),
-                                                                          speeds.copy(), step))
+                if starts is not None:  # from the one state again: the kernels' cost alone is compared
+                    backend = packages[key[0]][1].CPUBackend(backend.model, starts[key[0]])
                 start = time.perf_counter()
                 backend.advance(args.steps)
                 times[key].append(time.perf_counter() - start)
