@@ -16,7 +16,7 @@ import pytest
 
 from flocking import Model, State
 from flocking.backends.cells import cell_grid
-from flocking.backends.cpu import CPUBackend
+from flocking.backends.cpu import CPUBackend, kernel_name
 from flocking.backends.reference import ReferenceBackend
 
 TOL = 1e-12
@@ -174,19 +174,20 @@ def test_saved_order_is_restored_and_checked():
 @pytest.mark.slow
 @pytest.mark.parametrize("extension", [dict(vision=2.1), dict(alignment_rule="nematic"),
                                        dict(species=[{"fraction": 0.5}, {"fraction": 0.5}],
-                                            coupling=[[1.0, -0.5], [-0.5, 1.0]]),
+                                            coupling=[[1.0, -0.5], [-0.5, 1.0]], vision=2.1),
                                        dict(vision=2.1, neighbours="topological", k=5)],
-                         ids=["vision", "nematic", "coupling", "vision-topological"])
+                         ids=["vision", "nematic", "coupling-vision", "vision-topological"])
 def test_the_shared_weighted_variant_gives_the_bits_of_a_variant_of_its_own(extension, monkeypatch):
-    # cpu_kernels.variant compiles every pair weight in when any is on; those the model leaves
-    # off multiply by exactly 1, so 20 steps equal those of the variant compiled for the model alone
+    # cpu_kernels.variant compiles nematic signs and a cone in together when either is on;
+    # the one the model leaves off multiplies by exactly 1, so 20 steps equal those of the
+    # variant compiled for the model alone
     from flocking.backends import cpu_kernels
 
     model = Model(n=400, box=12.0, noise=0.4, seed=5, **extension)
     shared = CPUBackend(model, State.random(model))
-    assert shared._kernel is getattr(cpu_kernels.build(cpu_kernels.variant(shared._features), 2),
+    assert shared._kernel is getattr(cpu_kernels.build(cpu_kernels.variant(shared._features, kernel_name(model)), 2),
                                      shared._kernel.py_func.__name__.split("_")[0])
-    monkeypatch.setattr(cpu_kernels, "variant", lambda features: features)
+    monkeypatch.setattr(cpu_kernels, "variant", lambda features, kernel: features)
     own = CPUBackend(model, State.random(model))
     assert own._kernel is not shared._kernel
     assert np.array_equal(shared.advance(20), own.advance(20))

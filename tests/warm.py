@@ -22,14 +22,20 @@ import flocking
 
 SRC = os.path.dirname(os.path.dirname(flocking.__file__))
 
+#: two species with a coupling
+COUPLED = dict(species=[{"fraction": 0.5}, {"fraction": 0.5}], coupling=[[1.0, -1.0], [-1.0, 1.0]])
+
 #: one small model per kernel the default suite runs (kernel, variant of
 #: ``extended coupling nematic cone cohesion``), and the seconds its first step took to
-#: compile on the project's 2-core machine, one at a time, on 2026-11-26
+#: compile on the project's 2-core machine, one at a time, on 2026-11-26 (the three weighted
+#: ``lines_2d`` ones on 2026-11-27, after the plain model's)
 MODELS = [
     (17, dict(n=50, box=6.0)),  # lines_2d_00000
     (17, dict(n=50, box=6.0, boundary="wall")),  # lines_2d_10000
     (58, dict(n=50, box=6.0, cohesion=0.5)),  # lines_2d_10001
-    (34, dict(n=50, box=6.0, vision=2.0)),  # lines_2d_11110
+    (23, dict(n=50, box=6.0, vision=2.0)),  # lines_2d_10110
+    (23, dict(n=50, box=6.0, **COUPLED)),  # lines_2d_11000
+    (27, dict(n=50, box=6.0, vision=2.0, **COUPLED)),  # lines_2d_11110
     (18, dict(n=50, box=6.0, dim=3)),  # lines_3d_00000
     (27, dict(n=50, box=6.0, dim=3, boundary="wall")),  # lines_3d_10000
     (35, dict(n=50, box=6.0, neighbours="topological")),  # search_2d_00000
@@ -54,7 +60,7 @@ def kernel_of(kwargs: dict) -> str:
     from flocking.backends.features import features
 
     model = Model(**kwargs)
-    return f"{kernel_name(model)}_{cache_tag(variant(features(model)), model.dim)}"
+    return f"{kernel_name(model)}_{cache_tag(variant(features(model), kernel_name(model)), model.dim)}"
 
 
 #: what each process runs: two steps of each model it is given

@@ -186,8 +186,9 @@ def copy_range(x, y, z, hx, hy, hz, tag, lo, hi, shx, shy, shz, buf, m, d):
     ``tag`` is None, ``tag[:, slot]`` into rows ``2d, 2d + 1, ...``); returns the new end. Unsigned indices
     (here and in the reductions): numba then emits no negative-index wraparound, which
     would keep LLVM from vectorising the loops."""
-    m = np.uint64(m)
-    for j in range(np.uint64(max(lo, 0)), np.uint64(max(hi, 0))):
+    m0 = m = np.uint64(m)
+    lo, hi = np.uint64(max(lo, 0)), np.uint64(max(hi, 0))
+    for j in range(lo, hi):
         buf[0, m] = x[j] + shx
         buf[1, m] = y[j] + shy
         buf[d, m] = hx[j]
@@ -195,10 +196,13 @@ def copy_range(x, y, z, hx, hy, hz, tag, lo, hi, shx, shy, shz, buf, m, d):
         if d == 3:
             buf[2, m] = z[j] + shz
             buf[5, m] = hz[j]
-        if tag is not None:  # pruned when compiling for None: the plain kernel never sees it
-            for a in range(tag.shape[0]):
-                buf[2 * d + a, m] = tag[a, j]
         m += U1
+    if tag is not None:  # pruned when compiling for None: the plain kernel never sees it
+        # a loop of its own per row: inside the loop above, a loop over the rows whose
+        # length is known only at run time kept LLVM from vectorising the copy
+        for a in range(tag.shape[0]):
+            for j in range(lo, hi):
+                buf[2 * d + a, m0 + j - lo] = tag[a, j]
     return np.int64(m)
 
 

@@ -113,8 +113,9 @@ class CPUBackend:
             self._spd, self._tmp_spd = np.empty(n), np.empty(n)
         self._step_count = state.step
         self._features = features(model)
-        self._kernel = getattr(cpu_kernels.build(cpu_kernels.variant(self._features), d), kernel_name(model))
-        units = cells.work_units(self._nc, n, 0 if kernel_name(model) == "lines" else 1)
+        kernel = kernel_name(model)
+        self._kernel = getattr(cpu_kernels.build(cpu_kernels.variant(self._features, kernel), d), kernel)
+        units = cells.work_units(self._nc, n, 0 if kernel == "lines" else 1)
         self._partial = np.zeros((units, moment_width(model) if model.extended else 3))
         self._params = step(model)
         self._tables = tables(model)

@@ -726,24 +726,34 @@ VARIANT = ("pair_2d", "pair_3d", "force", "cohere", "wreduce_2d", "wreduce_3d", 
            "nearest_sums", "remember", "advance", "add_moments", "line_units", "search_blocks")
 
 
-def variant(features: Features) -> Features:
-    """The variant of the kernels that steps a model with ``features``. The pair weights (a
-    coupling, nematic signs, a vision cone) are compiled in together, whichever are on: one
-    variant instead of seven, so a new combination seldom waits for numba. A weight that
-    the model leaves off is made neutral by its table (couplings of 1, a ``bias`` of
-    4, the cone -4) and multiplies by exactly 1: the sums are those of a variant of its own, bit
-    for bit, at a cost measured in docs/performance.md. Cohesion alone keeps a variant of
-    its own (with the weights compiled in it ran at 0.35 of the plain rate instead of 0.50,
-    measured before it had a pass of its own).
+def variant(features: Features, kernel: str = "lines") -> Features:
+    """The variant of ``kernel`` (``lines`` or ``search``) that steps a model with
+    ``features``. Pair weights are compiled in together, whichever is on, so that a new
+    combination seldom waits for numba: the ones a model leaves off are made neutral by
+    their tables (a ``bias`` of 4, the cone -4, couplings of 1) and multiply by exactly 1,
+    so the sums are those of a variant of its own, bit for bit. In ``lines`` a coupling
+    matrix stays out of the group, compiled in only for a model that has one: there it
+    costs even when neutral, a buffer row per species that every unit gathers (with it
+    compiled in, a model with a cone ran at 0.73 of the plain rate instead of 0.89, and with
+    the other two weights compiled in, a coupling alone at 0.75 instead of 0.85; in
+    ``search``, which looks the coupling up per pair, a cone ran at 0.78 to 0.80 of the
+    plain rate either way; docs/performance.md). Cohesion keeps variants of its own (with
+    the weights compiled in it ran at 0.35 of the plain rate instead of 0.50, measured
+    before it had a pass of its own).
 
     >>> variant(Features(extended=True, cone=True))
+    Features(extended=True, coupling=False, nematic=True, cone=True, cohesion=False)
+    >>> variant(Features(extended=True, coupling=True)) == Features(extended=True, coupling=True)
+    True
+    >>> variant(Features(extended=True, coupling=True), "search")
     Features(extended=True, coupling=True, nematic=True, cone=True, cohesion=False)
     >>> variant(Features(extended=True, cohesion=True)) == Features(extended=True, cohesion=True)
     True
     """
-    if not (features.coupling or features.nematic or features.cone):
+    group = ("nematic", "cone") if kernel == "lines" else ("coupling", "nematic", "cone")
+    if not any(getattr(features, weight) for weight in group):
         return features
-    return features._replace(coupling=True, nematic=True, cone=True)
+    return features._replace(**{weight: True for weight in group})
 
 
 def cache_tag(features: Features, dim: int) -> str:

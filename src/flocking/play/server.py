@@ -210,10 +210,12 @@ def same_origin(origin: str | None, host: str | None) -> bool:
 
 #: what a page switches on that needs a kernel of its own
 #: (:func:`flocking.backends.cpu_kernels.variant`): walls, obstacles, chirality, species run
-#: in the extended kernel; any pair weight (anti-aligning species, a vision cone) in the
-#: weighted one; cohesion in its own (with a pair weight, in one more, compiled when first
-#: asked for)
-PAGE_FEATURES = ({"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]}, {"vision": 1.0}, {"cohesion": 1.0})
+#: in the extended kernel; a vision cone, a coupling of species, and the two together each
+#: in a weighted one; cohesion in its own (with a pair weight, in one more, compiled when
+#: first asked for)
+COUPLED = {"species": [{"fraction": 0.5}, {"fraction": 0.5}], "coupling": [[1.0, -1.0], [-1.0, 1.0]]}
+PAGE_FEATURES = ({"obstacles": [{"centre": [4.0, 4.0], "radius": 1.0}]}, {"vision": 1.0}, COUPLED,
+                 {"vision": 1.0, **COUPLED}, {"cohesion": 1.0})
 
 
 def warm_models() -> list[Model]:
