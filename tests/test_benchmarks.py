@@ -80,3 +80,20 @@ def test_same_process_compares_a_tree_with_itself(tmp_path):
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].endswith(
         "--same-state: -1 is not a number of steps (0 or more)")
+
+
+def test_same_process_takes_case_names_that_hold_commas():
+    """``--cases`` splits on commas, but a name such as "walls, cone, chirality, field"
+    is taken whole (the longest known name first), and an unknown one is named alone."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from bench_extensions import cases
+        from same_process import split_cases
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    known = cases(1000, 2.0)
+    assert split_cases("walls,walls, cone, chirality, field,two species, coupling", known) == \
+        ["walls", "walls, cone, chirality, field", "two species, coupling"]
+    assert split_cases(" cohesion ", known) == ["cohesion"]
+    with pytest.raises(ValueError, match="^gravity$"):
+        split_cases("walls,gravity,cohesion", known)
