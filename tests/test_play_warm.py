@@ -87,7 +87,7 @@ def test_the_warm_up_covers_each_feature_of_the_page_and_plain_and_extended_kern
     from flocking.backends.cpu_kernels import variant
     from flocking.backends.features import features
 
-    kinds = {(m.dim, kernel_name(m), variant(features(m))) for m in server.warm_models()}
+    kinds = {(m.dim, kernel_name(m), variant(features(m), kernel_name(m))) for m in server.warm_models()}
     assert {(f.extended, f.weighted, f.cohesion) for d, k, f in kinds if (d, k) == (2, "lines")} == \
         {(False, False, False), (True, False, False), (True, True, False), (True, True, True)}
     assert {(d, k, f.extended) for d, k, f in kinds} == {(2, "lines", False), (2, "lines", True), (2, "search", False),
