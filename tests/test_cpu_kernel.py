@@ -178,9 +178,10 @@ def test_saved_order_is_restored_and_checked():
                                        dict(vision=2.1, neighbours="topological", k=5)],
                          ids=["vision", "nematic", "coupling-vision", "vision-topological"])
 def test_the_shared_weighted_variant_gives_the_bits_of_a_variant_of_its_own(extension, monkeypatch):
-    # cpu_kernels.variant compiles nematic signs and a cone in together when either is on;
-    # the one the model leaves off multiplies by exactly 1, so 20 steps equal those of the
-    # variant compiled for the model alone
+    # cpu_kernels.variant compiles the pair weights of a group in together when any is on
+    # (nematic signs and a cone; in the search kernel a coupling too); those the model
+    # leaves off multiply by exactly 1, so 20 steps equal those of the variant compiled for
+    # the model alone
     from flocking.backends import cpu_kernels
 
     model = Model(n=400, box=12.0, noise=0.4, seed=5, **extension)

@@ -726,7 +726,7 @@ VARIANT = ("pair_2d", "pair_3d", "force", "cohere", "wreduce_2d", "wreduce_3d", 
            "nearest_sums", "remember", "advance", "add_moments", "line_units", "search_blocks")
 
 
-def variant(features: Features, kernel: str = "lines") -> Features:
+def variant(features: Features, kernel: str) -> Features:
     """The variant of ``kernel`` (``lines`` or ``search``) that steps a model with
     ``features``. Pair weights are compiled in together, whichever is on, so that a new
     combination seldom waits for numba: the ones a model leaves off are made neutral by
@@ -741,13 +741,13 @@ def variant(features: Features, kernel: str = "lines") -> Features:
     the weights compiled in it ran at 0.35 of the plain rate instead of 0.50, measured
     before it had a pass of its own).
 
-    >>> variant(Features(extended=True, cone=True))
+    >>> variant(Features(extended=True, cone=True), "lines")
     Features(extended=True, coupling=False, nematic=True, cone=True, cohesion=False)
-    >>> variant(Features(extended=True, coupling=True)) == Features(extended=True, coupling=True)
+    >>> variant(Features(extended=True, coupling=True), "lines") == Features(extended=True, coupling=True)
     True
     >>> variant(Features(extended=True, coupling=True), "search")
     Features(extended=True, coupling=True, nematic=True, cone=True, cohesion=False)
-    >>> variant(Features(extended=True, cohesion=True)) == Features(extended=True, cohesion=True)
+    >>> variant(Features(extended=True, cohesion=True), "lines") == Features(extended=True, cohesion=True)
     True
     """
     group = ("nematic", "cone") if kernel == "lines" else ("coupling", "nematic", "cone")
