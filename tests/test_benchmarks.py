@@ -4,11 +4,15 @@ imported), so a change to the engine that breaks one is seen without a GPU."""
 
 from __future__ import annotations
 
+import ctypes
+import importlib
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numba
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,3 +101,65 @@ def test_same_process_takes_case_names_that_hold_commas():
     assert split_cases(" cohesion ", known) == ["cohesion"]
     with pytest.raises(ValueError, match="^gravity$"):
         split_cases("walls,gravity,cohesion", known)
+
+
+def bench_module(name):
+    """The script ``benchmarks/<name>.py``, imported."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+
+
+@pytest.fixture(scope="module")
+def jit_code(tmp_path_factory):
+    """A function compiled by numba, the folder where ``jit_profile.dump_code`` wrote this
+    process's code, and the regions it found there."""
+    jit_profile = bench_module("jit_profile")
+    twice = numba.cfunc("float64(float64)")(lambda x: 2.0 * x + 1.0)
+    folder = str(tmp_path_factory.mktemp("code"))
+    return jit_profile, twice, folder, jit_profile.dump_code(folder)
+
+
+def test_jit_profile_dumps_the_code_that_numba_compiled(jit_code):
+    """``dump_code`` writes every anonymous executable region: one holds the compiled
+    function, byte for byte as it is in memory, and ``regions`` reads them back."""
+    jit_profile, twice, folder, written = jit_code
+    assert twice.ctypes(3.0) == 7.0
+    found = jit_profile.regions(folder)
+    assert [(start, size) for start, size, _ in found] == sorted(written)
+    start, _, path = next(r for r in found if r[0] <= twice.address < r[0] + r[1])
+    with open(path, "rb") as f:
+        f.seek(twice.address - start)
+        assert f.read(32) == ctypes.string_at(twice.address, 32)
+
+
+def test_jit_profile_counts_samples_per_region_and_block():
+    jit_profile = bench_module("jit_profile")
+    found = [(0x1000, 0x800, "a"), (0x4000, 0x100, "b")]
+    addresses = [0x1000, 0x10FF, 0x1100, 0x17FF, 0x1800, 0x40FF, 0x4100, 0x0]
+    assert jit_profile.per_region(addresses, found) == {0x1000: 4, 0x4000: 1}
+    assert jit_profile.per_block(addresses, 0x1000, 0x800) == {0x000: 2, 0x100: 1, 0x700: 1}
+    assert jit_profile.per_block(addresses, 0x1000, 0x800, width=0x400) == {0x000: 3, 0x400: 1}
+
+
+@pytest.mark.skipif(shutil.which("objdump") is None, reason="objdump (binutils) is not installed")
+def test_jit_profile_lists_the_sampled_instruction_with_its_share(jit_code):
+    """The listing of the region holding the function has a line at the function's first
+    instruction, which carries the share of the samples given there (3 of 4)."""
+    jit_profile, twice, _, _ = jit_code
+    start, _, path = next(r for r in jit_profile.regions(jit_code[2]) if r[0] <= twice.address < r[0] + r[1])
+    lines = jit_profile.listing(path, start, [twice.address] * 3 + [start - 1], total=4)
+    first = next(line for line in lines if int(line.split()[1], 16) == twice.address - start)
+    assert first.split()[0] == "75.00"
+    assert sum(float(line.split()[0]) for line in lines) == 75.0
+
+
+def test_jit_profile_runs_a_case_and_dumps_its_code(tmp_path, capsys):
+    jit_profile = bench_module("jit_profile")
+    jit_profile.run("plain", warm=1, steps=2, n=300, dim=2, folder=str(tmp_path))
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("plain: ") and out[0].endswith("particle-steps/s over 2 steps after 1")
+    assert out[1] == f"{len(jit_profile.regions(str(tmp_path)))} regions of code written to {tmp_path}"
+    assert jit_profile.regions(str(tmp_path))
