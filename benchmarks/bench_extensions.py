@@ -50,6 +50,13 @@ def cases(n: int, density: float, dim: int = 2) -> dict[str, dict]:
     return found
 
 
+def backend(extra: dict, n: int, density: float, dim: int) -> CPUBackend:
+    """A cpu backend of a case (``extra``: its model arguments, from :func:`cases`) from a
+    random state: ``n`` particles at ``density`` in ``dim`` dimensions, noise 1, seed 1."""
+    model = flocking.Model(n=n, dim=dim, density=density, noise=1.0, seed=1, **extra)
+    return CPUBackend(model, flocking.State.random(model))
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", type=int, default=100_000)
@@ -60,14 +67,13 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     backends = {}
     for name, extra in cases(args.n, args.density, args.dim).items():
-        model = flocking.Model(n=args.n, dim=args.dim, density=args.density, noise=1.0, seed=1, **extra)
-        backends[name] = CPUBackend(model, flocking.State.random(model))
+        backends[name] = backend(extra, args.n, args.density, args.dim)
         backends[name].advance(2)  # compile (or load) the kernels
     best = dict.fromkeys(backends, float("inf"))
     for _ in range(args.repeats):
-        for name, backend in backends.items():
+        for name, stepped in backends.items():
             start = time.perf_counter()
-            backend.advance(args.steps)
+            stepped.advance(args.steps)
             best[name] = min(best[name], time.perf_counter() - start)
     print(f"{args.dim}D, N = {args.n}, density {args.density}, best of {args.repeats} x {args.steps} steps\n")
     print("| case | particle-steps/s | against plain |\n| --- | ---: | ---: |")

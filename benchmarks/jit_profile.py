@@ -24,8 +24,9 @@ import collections
 import os
 import re
 import subprocess
-import sys
 import time
+
+from bench_extensions import backend, cases
 
 
 def dump_code(folder: str) -> list[tuple[int, int]]:
@@ -103,17 +104,10 @@ def listing(path: str, start: int, addresses, total: int) -> list[str]:
 def run(case: str, warm: int, steps: int, n: int, dim: int, folder: str) -> None:
     """Step ``case`` of ``bench_extensions.py`` ``warm`` steps, then ``steps`` timed, then
     dump the code (:func:`dump_code`)."""
-    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from bench_extensions import cases
-
-    import flocking
-    from flocking.backends.cpu import CPUBackend
-
-    model = flocking.Model(n=n, dim=dim, density=2.0, noise=1.0, seed=1, **cases(n, 2.0, dim)[case])
-    backend = CPUBackend(model, flocking.State.random(model))
-    backend.advance(warm)
+    stepped = backend(cases(n, 2.0, dim)[case], n, 2.0, dim)
+    stepped.advance(warm)
     begin = time.perf_counter()
-    backend.advance(steps)
+    stepped.advance(steps)
     seconds = time.perf_counter() - begin
     print(f"{case}: {steps * n / seconds:.3g} particle-steps/s over {steps} steps after {warm}")
     print(f"{len(dump_code(folder))} regions of code written to {folder}")

@@ -86,23 +86,6 @@ def test_same_process_compares_a_tree_with_itself(tmp_path):
         "--same-state: -1 is not a number of steps (0 or more)")
 
 
-def test_same_process_takes_case_names_that_hold_commas():
-    """``--cases`` splits on commas, but a name such as "walls, cone, chirality, field"
-    is taken whole (the longest known name first), and an unknown one is named alone."""
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        from bench_extensions import cases
-        from same_process import split_cases
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
-    known = cases(1000, 2.0)
-    assert split_cases("walls,walls, cone, chirality, field,two species, coupling", known) == \
-        ["walls", "walls, cone, chirality, field", "two species, coupling"]
-    assert split_cases(" cohesion ", known) == ["cohesion"]
-    with pytest.raises(ValueError, match="^gravity$"):
-        split_cases("walls,gravity,cohesion", known)
-
-
 def bench_module(name):
     """The script ``benchmarks/<name>.py``, imported."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -112,24 +95,37 @@ def bench_module(name):
         sys.path.remove(str(ROOT / "benchmarks"))
 
 
+def test_same_process_takes_case_names_that_hold_commas():
+    """``--cases`` splits on commas, but a name such as "walls, cone, chirality, field"
+    is taken whole (the longest known name first), and an unknown one is named alone."""
+    split_cases = bench_module("same_process").split_cases
+    known = bench_module("bench_extensions").cases(1000, 2.0)
+    assert split_cases("walls,walls, cone, chirality, field,two species, coupling", known) == \
+        ["walls", "walls, cone, chirality, field", "two species, coupling"]
+    assert split_cases(" cohesion ", known) == ["cohesion"]
+    with pytest.raises(ValueError, match="^gravity$"):
+        split_cases("walls,gravity,cohesion", known)
+
+
 @pytest.fixture(scope="module")
 def jit_code(tmp_path_factory):
-    """A function compiled by numba, the folder where ``jit_profile.dump_code`` wrote this
-    process's code, and the regions it found there."""
+    """A function compiled by numba, what ``jit_profile.dump_code`` returned, the regions
+    ``jit_profile.regions`` read back, and the one of them that holds the function."""
     jit_profile = bench_module("jit_profile")
     twice = numba.cfunc("float64(float64)")(lambda x: 2.0 * x + 1.0)
     folder = str(tmp_path_factory.mktemp("code"))
-    return jit_profile, twice, folder, jit_profile.dump_code(folder)
+    written = jit_profile.dump_code(folder)
+    found = jit_profile.regions(folder)
+    holding = next(r for r in found if r[0] <= twice.address < r[0] + r[1])
+    return jit_profile, twice, written, found, holding
 
 
 def test_jit_profile_dumps_the_code_that_numba_compiled(jit_code):
     """``dump_code`` writes every anonymous executable region: one holds the compiled
     function, byte for byte as it is in memory, and ``regions`` reads them back."""
-    jit_profile, twice, folder, written = jit_code
+    _, twice, written, found, (start, _, path) = jit_code
     assert twice.ctypes(3.0) == 7.0
-    found = jit_profile.regions(folder)
-    assert [(start, size) for start, size, _ in found] == sorted(written)
-    start, _, path = next(r for r in found if r[0] <= twice.address < r[0] + r[1])
+    assert [region[:2] for region in found] == sorted(written)
     with open(path, "rb") as f:
         f.seek(twice.address - start)
         assert f.read(32) == ctypes.string_at(twice.address, 32)
@@ -148,8 +144,7 @@ def test_jit_profile_counts_samples_per_region_and_block():
 def test_jit_profile_lists_the_sampled_instruction_with_its_share(jit_code):
     """The listing of the region holding the function has a line at the function's first
     instruction, which carries the share of the samples given there (3 of 4)."""
-    jit_profile, twice, _, _ = jit_code
-    start, _, path = next(r for r in jit_profile.regions(jit_code[2]) if r[0] <= twice.address < r[0] + r[1])
+    jit_profile, twice, _, _, (start, _, path) = jit_code
     lines = jit_profile.listing(path, start, [twice.address] * 3 + [start - 1], total=4)
     first = next(line for line in lines if int(line.split()[1], 16) == twice.address - start)
     assert first.split()[0] == "75.00"
