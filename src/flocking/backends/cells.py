@@ -90,6 +90,23 @@ def prefetch(typingctx, ring, slot, pid):
     return sig, codegen
 
 
+@intrinsic
+def mask4(typingctx, b0, b1, b2, b3):
+    """``b0 + 2 b1 + 4 b2 + 8 b3`` (uint64) from four booleans, built as the bits of one
+    vector of four so that LLVM takes it from a vector comparison in one move."""
+    sig = types.uint64(types.boolean, types.boolean, types.boolean, types.boolean)
+
+    def codegen(context, builder, signature, args):
+        from llvmlite import ir
+
+        vec = ir.Constant(ir.VectorType(ir.IntType(1), 4), None)
+        for lane, bit in enumerate(args):
+            vec = builder.insert_element(vec, bit, ir.IntType(32)(lane))
+        return builder.zext(builder.bitcast(vec, ir.IntType(4)), ir.IntType(64))
+
+    return sig, codegen
+
+
 # -- the cell structure: parallel stable counting sort ---------------------------------
 
 
