@@ -204,11 +204,12 @@ def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias):
     return t[0], t[1], t[2], t[3]
 
 
-def force(buf, near, m, k, xi, yi, zi, coh):
-    """:func:`flocking.rules.physics.cohesion_term` of candidate ``near[m]`` of the buffer,
-    or zeros if ``m >= k`` (``near[m]`` is then a copy of ``near[0]``, see :func:`cohere`)."""
-    inside = m < k
-    j = near[m]
+def force(buf, near, m, l, left, xi, yi, zi, coh):
+    """:func:`flocking.rules.physics.cohesion_term` of candidate ``near[m + l]`` of the
+    buffer, or zeros if ``l >= left`` (``near[m + l]`` is then a copy of a real one, see
+    :func:`cohere`)."""
+    inside = l < left
+    j = near[m + l]
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi if DIM == 3 else 0.0
@@ -227,10 +228,13 @@ def cohere(buf, near, k, xi, yi, zi, coh, out, q):
     # a last, partial group reads a real candidate, weighed by 0 (k > 0 whenever the loop runs)
     near[k] = near[k + U1] = near[k + np.uint64(2)] = near[U0]
     for m in range(U0, k, np.uint64(4)):
-        t0 = force(buf, near, m, k, xi, yi, zi, coh)
-        t1 = force(buf, near, m + U1, k, xi, yi, zi, coh)
-        t2 = force(buf, near, m + np.uint64(2), k, xi, yi, zi, coh)
-        t3 = force(buf, near, m + np.uint64(3), k, xi, yi, zi, coh)
+        # lane l counts if l < left: each lane's own index m + l compared with k had the
+        # compiler build the indices in a vector and move them out again for the loads
+        left = k - m
+        t0 = force(buf, near, m, U0, left, xi, yi, zi, coh)
+        t1 = force(buf, near, m, U1, left, xi, yi, zi, coh)
+        t2 = force(buf, near, m, np.uint64(2), left, xi, yi, zi, coh)
+        t3 = force(buf, near, m, np.uint64(3), left, xi, yi, zi, coh)
         px0, px1, px2, px3 = px0 + t0[0], px1 + t1[0], px2 + t2[0], px3 + t3[0]
         py0, py1, py2, py3 = py0 + t0[1], py1 + t1[1], py2 + t2[1], py3 + t3[1]
         qx0, qx1, qx2, qx3 = qx0 + t0[3], qx1 + t1[3], qx2 + t2[3], qx3 + t3[3]
