@@ -147,11 +147,9 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
 
 # For each 4-bit mask of a group of four candidates (bit l: candidate l counts): the lanes
 # whose bit is set, in order, then zeros; and how many are set. With them note() writes a
-# group as four neighbouring entries (one vector store) and advances its index once,
-# instead of four stores each at an index that the one before advanced. The mask is the
-# lanes' vector comparison taken whole (cells.mask4: one move from a mask register);
-# assembled from four booleans by shifts and additions it took a dozen instructions a
-# group, and cohesion ran at 0.60 of the plain rate instead of 0.65 (docs/performance.md).
+# group as four neighbouring entries (one vector store) and advances its index once. The
+# mask is the lanes' vector comparison taken whole (cells.mask4, one move): assembled bit by
+# bit, it cost a dozen instructions a group and a tenth of cohesion's step (docs/performance.md).
 COMPACT = np.array([[l for l in range(4) if m >> l & 1] + [0] * (4 - bin(m).count("1")) for m in range(16)],
                    dtype=np.uint64)
 COUNT = np.array([bin(m).count("1") for m in range(16)], dtype=np.uint64)
@@ -205,9 +203,8 @@ def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias):
 
 
 def force(buf, near, m, l, left, xi, yi, zi, coh):
-    """:func:`flocking.rules.physics.cohesion_term` of candidate ``near[m + l]`` of the
-    buffer, or zeros if ``l >= left`` (``near[m + l]`` is then a copy of a real one, see
-    :func:`cohere`)."""
+    """:func:`flocking.rules.physics.cohesion_term` of candidate ``near[m + l]`` of the buffer,
+    or zeros if ``l >= left`` (``near[m + l]`` is then a copy of a real one, see :func:`cohere`)."""
     inside = l < left
     j = near[m + l]
     dx = buf[0, j] - xi
@@ -228,8 +225,7 @@ def cohere(buf, near, k, xi, yi, zi, coh, out, q):
     # a last, partial group reads a real candidate, weighed by 0 (k > 0 whenever the loop runs)
     near[k] = near[k + U1] = near[k + np.uint64(2)] = near[U0]
     for m in range(U0, k, np.uint64(4)):
-        # lane l counts if l < left: each lane's own index m + l compared with k had the
-        # compiler build the indices in a vector and move them out again for the loads
+        # lane l counts if l < left (m + l < k built the indices in a vector, then moved them out)
         left = k - m
         t0 = force(buf, near, m, U0, left, xi, yi, zi, coh)
         t1 = force(buf, near, m, U1, left, xi, yi, zi, coh)
