@@ -172,19 +172,19 @@ def test_saved_order_is_restored_and_checked():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("extension", [dict(vision=2.1), dict(alignment_rule="nematic"),
+@pytest.mark.parametrize("extension", [dict(vision=2.1, neighbours="topological", k=5),
+                                       dict(alignment_rule="nematic", neighbours="topological", k=5),
                                        dict(species=[{"fraction": 0.5}, {"fraction": 0.5}],
-                                            coupling=[[1.0, -0.5], [-0.5, 1.0]], vision=2.1),
-                                       dict(vision=2.1, neighbours="topological", k=5)],
-                         ids=["vision", "nematic", "coupling-vision", "vision-topological"])
+                                            coupling=[[1.0, -0.5], [-0.5, 1.0]], box=2.6)],
+                         ids=["vision-topological", "nematic-topological", "coupling-small-box"])
 def test_the_shared_weighted_variant_gives_the_bits_of_a_variant_of_its_own(extension, monkeypatch):
-    # cpu_kernels.variant compiles the pair weights of a group in together when any is on
-    # (nematic signs and a cone; in the search kernel a coupling too); those the model
-    # leaves off multiply by exactly 1, so 20 steps equal those of the variant compiled for
-    # the model alone
+    # in the search kernel cpu_kernels.variant compiles the pair weights (a coupling, nematic
+    # signs, a cone) in together when any is on; those the model leaves off multiply by
+    # exactly 1, so 20 steps equal those of the variant compiled for the model alone
     from flocking.backends import cpu_kernels
 
-    model = Model(n=400, box=12.0, noise=0.4, seed=5, **extension)
+    model = Model(**{"n": 400, "box": 12.0, "noise": 0.4, "seed": 5, **extension})
+    assert kernel_name(model) == "search"
     shared = CPUBackend(model, State.random(model))
     assert shared._kernel is getattr(cpu_kernels.build(cpu_kernels.variant(shared._features, kernel_name(model)), 2),
                                      shared._kernel.py_func.__name__.split("_")[0])

@@ -731,30 +731,26 @@ VARIANT = ("pair_2d", "pair_3d", "force", "cohere", "wreduce_2d", "wreduce_3d", 
 
 def variant(features: Features, kernel: str) -> Features:
     """The variant of ``kernel`` (``lines`` or ``search``) that steps a model with
-    ``features``. Pair weights are compiled in together, whichever is on, so that a new
-    combination seldom waits for numba: the ones a model leaves off are made neutral by
-    their tables (a ``bias`` of 4, the cone -4, couplings of 1) and multiply by exactly 1,
-    so the sums are those of a variant of its own, bit for bit. In ``lines`` a coupling
-    matrix stays out of the group, compiled in only for a model that has one: there it
-    costs even when neutral, a buffer row per species that every unit gathers (with it
-    compiled in, a model with a cone ran at 0.73 of the plain rate instead of 0.89, and with
-    the other two weights compiled in, a coupling alone at 0.75 instead of 0.85; in
-    ``search``, which looks the coupling up per pair, a cone ran at 0.78 to 0.80 of the
-    plain rate either way; docs/performance.md). Cohesion keeps variants of its own (with
-    the weights compiled in it ran at 0.35 of the plain rate instead of 0.50, measured
-    before it had a pass of its own).
+    ``features``. In ``lines`` each pair weight is compiled in only for a model that has it:
+    there a weight costs even when neutral (with nematic alignment compiled in, a model with
+    a cone ran at 0.79 of the plain rate instead of 0.87, and with a coupling compiled in at
+    0.73 instead of 0.89; docs/performance.md). In ``search``, which looks the coupling up
+    per pair, they are compiled in together whichever is on (a cone ran at 0.78 to 0.80 of
+    the plain rate either way), so that a new combination seldom waits for numba: the ones a
+    model leaves off are made neutral by their tables (a ``bias`` of 4, the cone -4,
+    couplings of 1) and multiply by exactly 1, so the sums are those of a variant of its
+    own, bit for bit. Cohesion keeps variants of its own (with the weights compiled in it
+    ran at 0.35 of the plain rate instead of 0.50, measured before it had a pass of its own).
 
-    >>> variant(Features(extended=True, cone=True), "lines")
-    Features(extended=True, coupling=False, nematic=True, cone=True, cohesion=False)
-    >>> variant(Features(extended=True, coupling=True), "lines") == Features(extended=True, coupling=True)
+    >>> variant(Features(extended=True, cone=True), "lines") == Features(extended=True, cone=True)
     True
     >>> variant(Features(extended=True, coupling=True), "search")
     Features(extended=True, coupling=True, nematic=True, cone=True, cohesion=False)
-    >>> variant(Features(extended=True, cohesion=True), "lines") == Features(extended=True, cohesion=True)
+    >>> variant(Features(extended=True, cohesion=True), "search") == Features(extended=True, cohesion=True)
     True
     """
-    group = ("nematic", "cone") if kernel == "lines" else ("coupling", "nematic", "cone")
-    if not any(getattr(features, weight) for weight in group):
+    group = ("coupling", "nematic", "cone")
+    if kernel == "lines" or not any(getattr(features, weight) for weight in group):
         return features
     return features._replace(**{weight: True for weight in group})
 
