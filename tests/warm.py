@@ -28,9 +28,9 @@ COUPLED = dict(species=[{"fraction": 0.5}, {"fraction": 0.5}], coupling=[[1.0, -
 #: one small model per kernel the default suite runs (kernel, variant of
 #: ``extended coupling nematic cone cohesion``), and the seconds its first step took to
 #: compile on the project's 2-core machine, one at a time, on 2026-11-26 (the three weighted
-#: ``lines_2d`` ones on 2026-11-27, after the plain model's; the three that a cone or nematic
-#: alignment alone and a coupling with a cone then gained, later that day, are not measured:
-#: taken as those of their siblings, for the split between processes only)
+#: ``lines_2d`` ones on 2026-11-27, after the plain model's; the three added later that day,
+#: a cone alone, nematic alignment alone and a coupling with a cone, are not measured: taken
+#: as their siblings', for the split between processes only)
 MODELS = [
     (17, dict(n=50, box=6.0)),  # lines_2d_00000
     (17, dict(n=50, box=6.0, boundary="wall")),  # lines_2d_10000
