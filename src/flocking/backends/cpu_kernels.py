@@ -482,17 +482,18 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
     vectorial = p.vectorial
     if EXT:
         si = species(pid, tb.bounds)
-        eta, epsilon, turn, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 2], tb.species[si, 3]
+        eta, epsilon, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 4]
+        cturn, sturn = tb.species[si, 2], tb.species[si, 3]
         if core:  # an infinite repulsion drowns the field and vectorial noise
             h = 0.0
             if vectorial:
                 eta = 0.0
     else:
-        eta, epsilon, turn, h = p.eta, p.epsilon, 0.0, 0.0
+        eta, epsilon, h, cturn, sturn = p.eta, p.epsilon, 0.0, 1.0, 0.0
     ds = (spd[i] if spd.shape[0] == n else spd[0]) * p.dt
     if d == 2:
         wx, wy = R.update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step, pid, h, tb.field[0],
-                             tb.field[1], turn)
+                             tb.field[1], cturn, sturn)
         wz = 0.0
     else:
         wx, wy, wz = R.update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step, pid, h,

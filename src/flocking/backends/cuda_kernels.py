@@ -304,13 +304,13 @@ def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
     vectorial = p.vectorial != 0
     if EXT:
         eta, epsilon = tb.species[r, si, 0], tb.species[r, si, 1]
-        turn, h = tb.species[r, si, 2], tb.species[r, si, 3]
+        cturn, sturn, h = tb.species[r, si, 2], tb.species[r, si, 3], tb.species[r, si, 4]
         if core:  # an infinite repulsion drowns the field and vectorial noise
             h = ZERO
             if vectorial:
                 eta = ZERO
     else:
-        eta, epsilon, turn, h = rp[r].eta, rp[r].epsilon, ZERO, ZERO
+        eta, epsilon, h, cturn, sturn = rp[r].eta, rp[r].epsilon, ZERO, ONE, ZERO
     if p.speeds != 0:
         ds = cur.spd[i] * p.dt
         new.spd[i] = cur.spd[i]
@@ -319,7 +319,7 @@ def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
     seed, step_, upid = rp[r].seed, np.uint64(t), np.uint64(pid)
     if DIM == 2:
         wx, wy = R.update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step_, upid, h, tb.field[0],
-                             tb.field[1], turn)
+                             tb.field[1], cturn, sturn)
         wz = ZERO
     else:
         wx, wy, wz = R.update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step_, upid, h,

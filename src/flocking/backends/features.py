@@ -72,8 +72,8 @@ class Tables(typing.NamedTuple):
       ``L/2``, or infinite along walls;
     - ``obstacles`` (M, d + 1): centre, radius;
     - ``bounds`` (S + 1, int64): the first id of each species, then ``N``;
-    - ``species`` (S, 4): per species the noise, the alignment, the turn ``omega dt``
-      and the field strength;
+    - ``species`` (S, 5): per species the noise, the alignment, the cosine and the sine
+      of the turn ``omega dt`` (1 and 0 without chirality), and the field strength;
     - ``coupling`` (S, S): the weight of species ``b`` in the sum of species ``a``;
     - ``field`` (3): the field's unit direction (zeros without one);
     - ``cone`` (1): ``cos |cos|`` of the vision half-angle (-4 without a cone: every
@@ -103,9 +103,9 @@ def tables(model: Model) -> Tables:
     box = np.asarray(model.box, dtype=np.float64)
     walls = np.asarray(model.walls, dtype=np.int64)
     obstacles = np.array([[*o.centre, o.radius] for o in model.obstacles], dtype=np.float64).reshape(-1, d + 1)
-    species = np.array([model.species_values(name) for name in ("noise", "alignment", "chirality", "field_strength")],
-                       dtype=np.float64).T.copy()
-    species[:, 2] *= model.dt
+    turn = [omega * model.dt for omega in model.species_values("chirality")]
+    species = np.array([model.species_values("noise"), model.species_values("alignment"), [math.cos(a) for a in turn],
+                        [math.sin(a) for a in turn], model.species_values("field_strength")], dtype=np.float64).T.copy()
     count = len(model.species_counts)
     coupling = np.ones((count, count)) if model.coupling is None else np.array(model.coupling, dtype=np.float64)
     field = np.zeros(3)

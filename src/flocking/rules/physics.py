@@ -3,13 +3,13 @@
 Plain scalar functions that :func:`flocking.rules.compile` builds for the CPU and CUDA
 kernels, in the order of docs/model.md. Constants are module globals (``ZERO``, ``ONE``,
 ..., ``REAL``) that the compiler binds to the target's float type; random numbers come
-from :func:`flocking.rng.draw`. A kernel passes literal zeros (no field, no turn) or a
+from :func:`flocking.rng.draw`. A kernel passes literal zeros (no field; no turn: its sine 0) or a
 flag it fixes at compile time where a model leaves an extension off, and the compiler
 then folds that code away: the plain model runs the plain arithmetic.
 
 >>> from flocking.rules import compile
 >>> R = compile("cpu")
->>> ux, uy = R.update_2d(1.0, 0.0, 0.0, 3.0, 3.0, 1.0, 0.0, False, 7, 0, 0, 0.0, 0.0, 0.0, 0.0)  # no noise
+>>> ux, uy = R.update_2d(1.0, 0.0, 0.0, 3.0, 3.0, 1.0, 0.0, False, 7, 0, 0, 0.0, 0.0, 0.0, 1.0, 0.0)  # no noise
 >>> round(ux, 12), round(uy, 12)
 (0.0, 1.0)
 """
@@ -32,10 +32,12 @@ def greater(a, b):
     return b if b > a else a
 
 
-def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, turn):
+def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, cturn, sturn):
     """From ``u_i(t)``, the sum ``S_i`` and its number of terms to ``u_i(t+1)`` (2D):
     field ``h g``, vectorial noise, mean direction, alignment by ``epsilon``, chirality
-    ``turn = omega dt``, angular noise ``eta`` (docs/model.md, steps 3 to 6)."""
+    (the turn ``omega dt`` by its cosine ``cturn`` and sine ``sturn``: constants of a
+    species, computed once rather than for every particle and step), angular noise
+    ``eta`` (docs/model.md, steps 3 to 6)."""
     z0 = REAL(draw(seed, step, pid, NOISE))
     if h != ZERO:
         sx = sx + h * count * gx
@@ -55,9 +57,8 @@ def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid, h
         a = epsilon * math.atan2(ux * my - uy * mx, ux * mx + uy * my)
         c, s = math.cos(a), math.sin(a)
         wx, wy = ux * c - uy * s, ux * s + uy * c
-    if turn != ZERO:
-        c, s = math.cos(turn), math.sin(turn)
-        wx, wy = wx * c - wy * s, wx * s + wy * c
+    if sturn != ZERO:
+        wx, wy = wx * cturn - wy * sturn, wx * sturn + wy * cturn
     if not vectorial:
         a = eta * (z0 - HALF)
         c, s = math.cos(a), math.sin(a)
