@@ -492,7 +492,7 @@ def geometry_record(model: Model, real, replicas: int = 1, rows: int = 1, speeds
 def device_tables(models: Sequence[Model], real) -> tuple[np.ndarray, ...]:
     """The fields of :class:`flocking.backends.cuda_kernels.DeviceTables` for replicas
     ``models`` (which share :data:`SHARED`), from :func:`flocking.backends.features.tables`,
-    converted to ``real``: the species' values per replica ``(R, S, 4)``, then the first
+    converted to ``real``: the species' values per replica ``(R, S, 5)``, then the first
     model's bounds (int32, as the ids: held in registers for the species look-up of every
     neighbour, 64-bit bounds cost the extended steps up to 12 more registers), coupling,
     field, cone, cohesion and obstacles (an unused row when there are none). The plain

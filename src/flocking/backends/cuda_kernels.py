@@ -70,7 +70,7 @@ class Particles(typing.NamedTuple):
 
 class DeviceTables(typing.NamedTuple):
     """:class:`flocking.backends.features.Tables` on the device, in the run's float type,
-    for every replica: ``species`` ``(R, S, 4)``; ``bounds`` (int32, as the ids),
+    for every replica: ``species`` ``(R, S, 5)``; ``bounds`` (int32, as the ids),
     ``coupling``, ``field``, ``cone``, ``cohesion`` as there; ``obstacles``
     ``(max(M, 1), d + 1)`` (an unused row when there are none)."""
 
