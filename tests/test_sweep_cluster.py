@@ -275,6 +275,10 @@ def test_a_scheduler_and_workers_started_apart_survive_a_killed_worker(tmp_path)
         cluster.stop()
 
 
+#: the errors of a run whose scheduler died: cancelled by Dask, or its connection closed
+LOST = ("FutureCancelledError", "CommClosedError", "OSError", "TimeoutError")
+
+
 def test_a_scheduler_that_dies_loses_no_finished_run(tmp_path):
     """The scheduler is killed once the first points are stored: the sweep ends (exit 1)
     with one line per unfinished run, each recorded as failed; the finished ones are kept,
@@ -292,9 +296,14 @@ def test_a_scheduler_that_dies_loses_no_finished_run(tmp_path):
         records = [json.loads(p.read_text()) for p in points.glob("*.json")]
         failed = [r for r in records if r["status"] == "failed"]
         assert failed and len(records) - len(failed) >= 1
-        assert all("scheduler-connection-lost" in r["error"] for r in failed)
+        # Dask cancels what it had not finished ("scheduler-connection-lost"); a result still
+        # being fetched when the scheduler dies can fail on the closed connection instead
+        # (requiring the cancellation of every run failed once in CI, its errors not kept):
+        # either way the run is recorded as failed with its error, and reported
+        assert any("scheduler-connection-lost" in r["error"] for r in failed)
+        assert all(r["error"].startswith(LOST) for r in failed), [r["error"] for r in failed]
         reported = [line for line in err.splitlines() if line.startswith("flocking sweep: point ")]
-        assert len(reported) == len(failed) and all("FutureCancelledError" in line for line in reported)
+        assert len(reported) == len(failed) and all(line.split(" failed: ", 1)[1].startswith(LOST) for line in reported)
         rerun = subprocess.run([sys.executable, "-m", "flocking", "sweep", "s.toml", "--serial", "--out", "dask"],
                                cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
         assert rerun.returncode == 0, rerun.stderr
