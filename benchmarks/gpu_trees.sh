@@ -15,13 +15,18 @@
 # Environment: BEFORE (a tree with src/ and benchmarks/; none: this tree alone), OUT (default
 # gpu-trees), BUDGET (seconds in all, default 540), SITE (a folder put first on PYTHONPATH,
 # e.g. packages installed there with `pip install --target`: NumPy and gsd versions that the
-# machine's numba-cuda imports with).
+# machine's numba-cuda imports with), ANATOMY (0: skip the anatomy), AGAIN (the cases of the
+# second round, e.g. "delay small"; default every case).
 set -u -o pipefail
 export PYTHONUNBUFFERED=1
 OUT=${OUT:-gpu-trees}
 BUDGET=${BUDGET:-540}
 SITE=${SITE:-}
 BEFORE=${BEFORE:-}
+ANATOMY=${ANATOMY:-1}
+AGAIN=${AGAIN:-}
+again=()
+for c in $AGAIN; do again+=(--case "$c"); done
 mkdir -p "$OUT"
 T0=$(date +%s)
 left() { echo $(( BUDGET - ($(date +%s) - T0) )); }
@@ -49,15 +54,17 @@ stage "gpu tests"
 workers=$(python3 -c "import xdist" 2>/dev/null && echo "-n 8")
 run 130 src:tests tests.txt python3 -m pytest -o addopts="" -p no:cacheprovider -q -rfE -m gpu $workers \
     --rootdir . tests/test_cuda.py tests/test_geometry_promises.py
-stage "anatomy"
-run 60 src anatomy_after.txt python3 benchmarks/cuda_anatomy.py --scale 0.3
-if [ -n "$BEFORE" ]; then
-    run 60 "$BEFORE/src" anatomy_before.txt python3 "$BEFORE/benchmarks/cuda_anatomy.py" --scale 0.3
+if [ "$ANATOMY" != 0 ]; then
+    stage "anatomy"
+    run 60 src anatomy_after.txt python3 benchmarks/cuda_anatomy.py --scale 0.3
+    if [ -n "$BEFORE" ]; then
+        run 60 "$BEFORE/src" anatomy_before.txt python3 "$BEFORE/benchmarks/cuda_anatomy.py" --scale 0.3
+    fi
 fi
-if [ -n "$BEFORE" ] && [ "$(left)" -gt 140 ]; then
+if [ -n "$BEFORE" ] && [ "$(left)" -gt 60 ]; then
     half=$(( ($(left) - 10) / 2 ))
-    stage "second round, ${half} s a tree"
-    run "$half" src bench_after_2.txt python3 benchmarks/bench_cuda.py
-    run "$half" "$BEFORE/src" bench_before_2.txt python3 "$BEFORE/benchmarks/bench_cuda.py"
+    stage "second round${AGAIN:+ ($AGAIN)}, at most ${half} s a tree"
+    run "$half" src bench_after_2.txt python3 benchmarks/bench_cuda.py "${again[@]}"
+    run "$half" "$BEFORE/src" bench_before_2.txt python3 "$BEFORE/benchmarks/bench_cuda.py" "${again[@]}"
 fi
 stage "done"
