@@ -262,13 +262,16 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     total = ONE + s[3]
     s = (s[0], s[1], s[2], total, s[4], s[5], s[6], s[7], s[8], s[9], s[10])
     tau = rp[r].tau
+    # the step number read once: read again after the ring's writes, the compiler must
+    # load it again (it cannot tell that the ring is another array)
+    t = clock[0]
     if prime:
         for slot in range(tau):
             remember(ring, slot, gid, s)
         return
     if tau > 0:
-        s = remember(ring, clock[0] % tau, gid, s)
-    move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, clock[0])
+        s = remember(ring, t % tau, gid, s)
+    move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t)
 
 def remember(ring, slot, gid, s):
     """Swap the sums ``s`` with those the ring holds for ``gid`` in ``slot``."""
