@@ -129,22 +129,23 @@ def ptx_report() -> None:
     with tempfile.TemporaryDirectory() as folder:
         for precision, dim, k, (features, species) in [(p, d, k, e) for e in ((Features(), 1), (every, 2))
                                                       for p in ("float64", "float32") for d in (2, 3) for k in (0, 7)]:
-            kernels = cuda_kernels.build(precision, dim, k, Launch(256, 8, 8), features, species)
             signatures = cuda_kernels.signatures(precision, dim, species)
-            for name, signature in signatures.items():
-                if k and name != "step":
-                    continue  # only the step kernel depends on k
-                kernel = getattr(kernels.sort if name in ("digits", "scatter") else kernels, name)
-                ptx, _ = cuda.compile_ptx(kernel.py_func, signature, cc=(9, 0))
-                path = f"{folder}/{name}.ptx"
-                with open(path, "w") as f:
-                    f.write(ptx)
-                out = subprocess.run(["ptxas", "-arch=sm_90", "-v", path, "-o", "/dev/null"],
-                                     capture_output=True, text=True).stderr
-                info = "; ".join(line.split("info    : ")[-1] for line in out.splitlines()
-                                 if "Used" in line or "spill" in line)
-                label = "extended" if features.extended else "plain"
-                print(f"{label} {precision} {dim}D k={k} {name:8s} {info}", flush=True)
+            for delay in (False, True):
+                kernels = cuda_kernels.build(precision, dim, k, Launch(256, 8, 8), features, species, delay)
+                for name, signature in signatures.items():
+                    if (k or delay) and name != "step":
+                        continue  # only the step kernel depends on k and on the delay
+                    kernel = getattr(kernels.sort if name in ("digits", "scatter") else kernels, name)
+                    ptx, _ = cuda.compile_ptx(kernel.py_func, signature, cc=(9, 0))
+                    path = f"{folder}/{name}.ptx"
+                    with open(path, "w") as f:
+                        f.write(ptx)
+                    out = subprocess.run(["ptxas", "-arch=sm_90", "-v", path, "-o", "/dev/null"],
+                                         capture_output=True, text=True).stderr
+                    info = "; ".join(line.split("info    : ")[-1] for line in out.splitlines()
+                                     if "Used" in line or "spill" in line)
+                    label = ("extended" if features.extended else "plain") + (", delay" if delay else "")
+                    print(f"{label} {precision} {dim}D k={k} {name:8s} {info}", flush=True)
 
 
 def main() -> None:

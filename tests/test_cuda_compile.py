@@ -43,10 +43,16 @@ for name, signature in cuda_kernels.signatures(precision, dim, species).items():
     kernel = getattr(kernels.sort if name in ("digits", "scatter") else kernels, name)
     ptx, _ = cuda.compile_ptx(kernel.py_func, signature, cc=(9, 0))
     assert ".entry" in ptx, name
+    if name == "step":
+        no_delay = ptx
     if precision == "float32" and name == "step":
         # float32 kernels do their per-particle arithmetic in float32: the only doubles
         # are the random numbers' 53-bit fractions, converted once each
         assert ptx.count("cvt.rn.f32.f64") >= 1 and "sqrt.rn.f64" not in ptx, "a float64 square root"
+# the step of a delayed model (the ring read before the neighbour search) compiles too
+delayed = cuda_kernels.build(precision, dim, k, Launch(256, 8, 8), features, species, True)
+ptx, _ = cuda.compile_ptx(delayed.step.py_func, cuda_kernels.signatures(precision, dim, species)["step"], cc=(9, 0))
+assert ".entry" in ptx and ptx != no_delay, "the delayed step"
 print("COMPILED")
 """
 

@@ -198,7 +198,9 @@ class Engine:
         k = model.k if model.neighbours == "topological" else 0
         self._features = features(model)
         self._species = len(model.species_counts)
-        self._k = kernels = cuda_kernels.build(precision, d, k, launch, self._features, self._species)
+        self._taus = [x.delay for x in models]
+        self._k = kernels = cuda_kernels.build(precision, d, k, launch, self._features, self._species,
+                                               max(self._taus) > 0)
         real = kernels.real
         self._real = real
         self._width = kernels.width
@@ -234,7 +236,6 @@ class Engine:
         self._hist = cuda.to_device(np.zeros(sort.max_passes * sort.digits_per_pass, dtype=np.int32))
         self._tile_counter = cuda.to_device(np.zeros(sort.max_passes, dtype=np.int32))
         self._status = cuda.to_device(np.zeros(-(-m // sort.tile) * sort.digits_per_pass, dtype=np.int64))
-        self._taus = [x.delay for x in models]
         # (slot, particle, sums): the cpu backend's layout, a step reads and writes the slab
         # of slot t % tau
         width = ring_width(d, self._features)

@@ -110,9 +110,9 @@ def moment_width(dim: int, species: int, nematic: bool) -> int:
 
 # The values of a build: the functions below read them as globals, and build() compiles
 # each with its own values in place of these (the float type's constants, the flags of
-# Features, the dimension, k, the moment width, the launch shape).
+# Features and the delay's, the dimension, k, the moment width, the launch shape).
 R = None
-EXT = CPL = NEM = CONE = COH = False
+EXT = CPL = NEM = CONE = COH = DELAY = False
 DIM, K, KA, NSPECIES, WIDTH, BLOCK, HSIZE, PMAX = 2, 0, 1, 1, 2, 256, 1, 1
 REAL, ZERO, ONE = np.float64, 0.0, 1.0
 
@@ -238,9 +238,9 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     """One step of a slot into ``new[:, slot]`` and its sort record into
     ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the sums of tau
     steps ago (the others' heading sum, ``1 +`` their count, with cohesion the pull,
-    the push and the core count: the cpu backend's layout) and receives today's.
-    With ``prime``, only fill every ring slot with today's sums (the initial state
-    stands in for the past)."""
+    the push and the core count: the cpu backend's layout) and receives today's; a
+    build without ``DELAY`` has no ring code. With ``prime``, only fill every ring slot
+    with today's sums (the initial state stands in for the past)."""
     p = P[0]
     n = p.n
     r, local, i = slot_of(n)
@@ -248,6 +248,17 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
         return
     cb = r * p.cells
     pid = cur.ids[i]
+    if DELAY:
+        gid = r * n + pid
+        t = clock[0]
+        tau = rp[r].tau
+        slot = t % tau if tau > 0 else 0
+        past = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
+        if tau > 0 and not prime:
+            # read before the neighbour search, whose work hides the latency of these
+            # reads (scattered by id over the ring's slab): read after it, they made a
+            # delayed step 2.7 times slower (docs/gpu.md)
+            past = recall(ring, slot, gid)
     si = R.species_of(pid, tb.bounds, NSPECIES) if EXT else 0
     if K == 0:
         s = metric(i, cb, cur, start, p, tb, si)
@@ -258,41 +269,47 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
         bi = cuda.local.array(KA, np.int32)
         bs = cuda.local.array(KA, np.int32)
         s = nearest(i, cb, cur, start, p, tb, si, bd, bi, bs)
-    gid = r * n + pid
-    total = ONE + s[3]
-    s = (s[0], s[1], s[2], total, s[4], s[5], s[6], s[7], s[8], s[9], s[10])
-    tau = rp[r].tau
-    # the step number read once: read again after the ring's writes, the compiler must
-    # load it again (it cannot tell that the ring is another array)
-    t = clock[0]
-    if prime:
-        for slot in range(tau):
-            remember(ring, slot, gid, s)
-        return
-    if tau > 0:
-        s = remember(ring, t % tau, gid, s)
+    s = (s[0], s[1], s[2], ONE + s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+    if not DELAY:
+        # here, not before the search: held across it, they took 3 more registers
+        gid = r * n + pid
+        t = clock[0]
+    else:
+        if prime:
+            for q in range(tau):
+                keep(ring, q, gid, s)
+            return
+        if tau > 0:
+            keep(ring, slot, gid, s)
+            s = past if COH and ring.shape[2] >= 2 * DIM + 2 else (
+                past[0], past[1], past[2], past[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
     move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t)
 
-def remember(ring, slot, gid, s):
-    """Swap the sums ``s`` with those the ring holds for ``gid`` in ``slot``."""
-    W = ring.shape[2]
-    old = (ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, 2] if DIM == 3 else ZERO,
-           ring[slot, gid, DIM])
+def recall(ring, slot, gid):
+    """The sums the ring holds for ``gid`` in ``slot`` (zero where it holds none)."""
+    x, y = ring[slot, gid, 0], ring[slot, gid, 1]
+    z = ring[slot, gid, 2] if DIM == 3 else ZERO
+    total = ring[slot, gid, DIM]
+    if not COH or ring.shape[2] < 2 * DIM + 2:
+        return x, y, z, total, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO
+    o = DIM + 1
+    return (x, y, z, total, ring[slot, gid, o], ring[slot, gid, o + 1],
+            ring[slot, gid, o + 2] if DIM == 3 else ZERO, ring[slot, gid, o + DIM],
+            ring[slot, gid, o + DIM + 1], ring[slot, gid, o + DIM + 2] if DIM == 3 else ZERO,
+            ring[slot, gid, o + 2 * DIM])
+
+def keep(ring, slot, gid, s):
+    """Write the sums ``s`` into the ring for ``gid`` in ``slot``."""
     ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, DIM] = s[0], s[1], s[3]
     if DIM == 3:
         ring[slot, gid, 2] = s[2]
-    if not COH or W < 2 * DIM + 2:
-        return old[0], old[1], old[2], old[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10]
-    o = DIM + 1
-    extra = (ring[slot, gid, o], ring[slot, gid, o + 1], ring[slot, gid, o + 2] if DIM == 3 else ZERO,
-             ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1],
-             ring[slot, gid, o + DIM + 2] if DIM == 3 else ZERO, ring[slot, gid, o + 2 * DIM])
-    ring[slot, gid, o], ring[slot, gid, o + 1] = s[4], s[5]
-    ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1] = s[7], s[8]
-    if DIM == 3:
-        ring[slot, gid, o + 2], ring[slot, gid, o + DIM + 2] = s[6], s[9]
-    ring[slot, gid, o + 2 * DIM] = s[10]
-    return old[0], old[1], old[2], old[3], extra[0], extra[1], extra[2], extra[3], extra[4], extra[5], extra[6]
+    if COH and ring.shape[2] >= 2 * DIM + 2:
+        o = DIM + 1
+        ring[slot, gid, o], ring[slot, gid, o + 1] = s[4], s[5]
+        ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1] = s[7], s[8]
+        if DIM == 3:
+            ring[slot, gid, o + 2], ring[slot, gid, o + DIM + 2] = s[6], s[9]
+        ring[slot, gid, o + 2 * DIM] = s[10]
 
 def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
     """From the others' sums ``s`` to slot ``i``'s new heading, position and sort
@@ -460,17 +477,18 @@ def finish(partial, P, phi, clock, hist, tiles, tick):
 
 
 #: the device functions of a build, callees first
-DEVICE = ('slot_of', 'x_ranges', 'row_of', 'plus', 'terms', 'metric', 'nearest', 'remember', 'move', 'block_sum')
+DEVICE = ('slot_of', 'x_ranges', 'row_of', 'plus', 'terms', 'metric', 'nearest', 'recall', 'keep', 'move', 'block_sum')
 #: the kernels of a build
 KERNELS = ('step', 'cells', 'gather', 'finish')
 
 
 @functools.lru_cache(maxsize=None)
 def build(precision: str, dim: int, k: int, launch: Launch, features: Features = Features(),
-          species: int = 1) -> types.SimpleNamespace:
+          species: int = 1, delay: bool = False) -> types.SimpleNamespace:
     """The kernels for one precision (``"float64"``/``"float32"``), dimension, ``k`` (0:
     metric), launch shape (:class:`~flocking.backends.cuda_sort.Launch`), ``features``
-    (what is compiled in) and number of ``species`` (the width of the moment sums).
+    (what is compiled in), number of ``species`` (the width of the moment sums) and
+    ``delay`` (whether any replica has one: the delay ring's reads and writes).
 
     The functions of :data:`DEVICE` and :data:`KERNELS` are compiled from their text with
     these values as their globals (as :func:`flocking.rules.compile` binds the rules'
@@ -478,15 +496,15 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     real = np.float64 if precision == "float64" else np.float32
     R = compile_rules("cuda", real)
     EXT, CPL, NEM, CONE, COH = features
-    DIM, K, KA, NSPECIES = dim, k, max(k, 1), species
+    DIM, K, KA, NSPECIES, DELAY = dim, k, max(k, 1), species, delay
     WIDTH = moment_width(dim, species, NEM)
     BLOCK = launch.block
     sort = cuda_sort.build(launch)
     HSIZE, PMAX = sort.hist_size, sort.max_passes
     ZERO, ONE = real(0.0), real(1.0)
     namespace = {**globals(), "R": R, "EXT": EXT, "CPL": CPL, "NEM": NEM, "CONE": CONE, "COH": COH, "DIM": DIM,
-                 "K": K, "KA": KA, "NSPECIES": NSPECIES, "WIDTH": WIDTH, "BLOCK": BLOCK, "HSIZE": HSIZE,
-                 "PMAX": PMAX, "REAL": real, "ZERO": ZERO, "ONE": ONE}
+                 "K": K, "KA": KA, "NSPECIES": NSPECIES, "DELAY": DELAY, "WIDTH": WIDTH, "BLOCK": BLOCK,
+                 "HSIZE": HSIZE, "PMAX": PMAX, "REAL": real, "ZERO": ZERO, "ONE": ONE}
     for name in DEVICE:
         namespace[name] = cuda.jit(device=True)(rebind(globals()[name], namespace))
     for name in KERNELS:
