@@ -257,7 +257,7 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
         if tau > 0 and not prime:
             # read before the neighbour search, whose work hides the latency of these
             # reads (scattered by id over the ring's slab): read after it, they made a
-            # delayed step 2.7 times slower (docs/gpu.md)
+            # delayed step 2.8 times slower (docs/gpu.md)
             past = recall(ring, slot, gid)
     si = R.species_of(pid, tb.bounds, NSPECIES) if EXT else 0
     if K == 0:
