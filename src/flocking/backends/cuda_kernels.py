@@ -238,8 +238,8 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     """One step of a slot into ``new[:, slot]`` and its sort record into
     ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the sums of tau
     steps ago (the others' heading sum, ``1 +`` their count, with cohesion the pull,
-    the push and the core count: the cpu backend's layout) and receives today's; a
-    build without ``DELAY`` has no ring code. With ``prime``, only fill every ring slot
+    the push and the core count: the cpu backend's layout, ``features.ring_width``
+    values) and receives today's; a build without ``DELAY`` has no ring code. With ``prime``, only fill every ring slot
     with today's sums (the initial state stands in for the past)."""
     p = P[0]
     n = p.n
@@ -281,7 +281,7 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
             return
         if tau > 0:
             keep(ring, slot, gid, s)
-            s = past if COH and ring.shape[2] >= 2 * DIM + 2 else (
+            s = past if COH else (
                 past[0], past[1], past[2], past[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
     move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t)
 
@@ -290,7 +290,7 @@ def recall(ring, slot, gid):
     x, y = ring[slot, gid, 0], ring[slot, gid, 1]
     z = ring[slot, gid, 2] if DIM == 3 else ZERO
     total = ring[slot, gid, DIM]
-    if not COH or ring.shape[2] < 2 * DIM + 2:
+    if not COH:
         return x, y, z, total, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO
     o = DIM + 1
     return (x, y, z, total, ring[slot, gid, o], ring[slot, gid, o + 1],
@@ -303,7 +303,7 @@ def keep(ring, slot, gid, s):
     ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, DIM] = s[0], s[1], s[3]
     if DIM == 3:
         ring[slot, gid, 2] = s[2]
-    if COH and ring.shape[2] >= 2 * DIM + 2:
+    if COH:
         o = DIM + 1
         ring[slot, gid, o], ring[slot, gid, o + 1] = s[4], s[5]
         ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1] = s[7], s[8]
