@@ -23,13 +23,18 @@ ZERO, ONE, HALF, TWO, FOUR = 0.0, 1.0, 0.5, 2.0, 4.0
 TWO_PI, TINY, NEAR_X = 2.0 * math.pi, 1e-12, 0.9
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("greater", "update_2d", "update_3d", "species_of", "sees", "cohesion_term", "neighbour", "cohesive_sum",
+RULES = ("greater", "turn", "update_2d", "update_3d", "species_of", "sees", "cohesion_term", "neighbour", "cohesive_sum",
          "nematic_2d", "nematic_3d")
 
 
 def greater(a, b):
     """``max(a, b)`` as Python's (``a`` unless ``b`` is larger); CUDA has no builtin."""
     return b if b > a else a
+
+
+def turn(x, y, c, s):
+    """The vector ``(x, y)`` turned by the angle whose cosine is ``c`` and sine ``s``."""
+    return x * c - y * s, x * s + y * c
 
 
 def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid, h, gx, gy, cturn, sturn):
@@ -55,14 +60,12 @@ def update_2d(ux, uy, sx, sy, count, epsilon, eta, vectorial, seed, step, pid, h
         wx, wy = mx, my
     else:
         a = epsilon * math.atan2(ux * my - uy * mx, ux * mx + uy * my)
-        c, s = math.cos(a), math.sin(a)
-        wx, wy = ux * c - uy * s, ux * s + uy * c
+        wx, wy = turn(ux, uy, math.cos(a), math.sin(a))
     if sturn != ZERO:
-        wx, wy = wx * cturn - wy * sturn, wx * sturn + wy * cturn
+        wx, wy = turn(wx, wy, cturn, sturn)
     if not vectorial:
         a = eta * (z0 - HALF)
-        c, s = math.cos(a), math.sin(a)
-        wx, wy = wx * c - wy * s, wx * s + wy * c
+        wx, wy = turn(wx, wy, math.cos(a), math.sin(a))
     norm = math.sqrt(wx * wx + wy * wy)
     return wx / norm, wy / norm
 
