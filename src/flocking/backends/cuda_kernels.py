@@ -239,8 +239,9 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     ``rec[global id]``. ``ring[t % tau, global id]`` (tau > 0) holds the sums of tau
     steps ago (the others' heading sum, ``1 +`` their count, with cohesion the pull,
     the push and the core count: the cpu backend's layout, ``features.ring_width``
-    values) and receives today's; a build without ``DELAY`` has no ring code. With ``prime``, only fill every ring slot
-    with today's sums (the initial state stands in for the past)."""
+    values) and receives today's; a build without ``DELAY`` has no ring code. With
+    ``prime``, only fill every ring slot with today's sums (the initial state stands in
+    for the past)."""
     p = P[0]
     n = p.n
     r, local, i = slot_of(n)

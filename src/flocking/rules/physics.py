@@ -23,8 +23,8 @@ ZERO, ONE, HALF, TWO, FOUR = 0.0, 1.0, 0.5, 2.0, 4.0
 TWO_PI, TINY, NEAR_X = 2.0 * math.pi, 1e-12, 0.9
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("greater", "turn", "update_2d", "update_3d", "species_of", "sees", "cohesion_term", "neighbour", "cohesive_sum",
-         "nematic_2d", "nematic_3d")
+RULES = ("greater", "turn", "update_2d", "update_3d", "species_of", "sees", "cohesion_term", "neighbour",
+         "cohesive_sum", "nematic_2d", "nematic_3d")
 
 
 def greater(a, b):
