@@ -282,8 +282,7 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
             return
         if tau > 0:
             keep(ring, slot, gid, s)
-            s = past if COH else (
-                past[0], past[1], past[2], past[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+            s = past  # without cohesion its last seven are zeros that move() never reads
     move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t)
 
 def recall(ring, slot, gid):
