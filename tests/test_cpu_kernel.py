@@ -6,6 +6,7 @@ of the model goes through a different branch of the kernels (fast 2D/3D metric p
 generic path for boxes under 3R, topological search, delay ring, ...).
 """
 
+import math
 import os
 import subprocess
 import sys
@@ -196,16 +197,50 @@ def test_the_shared_weighted_variant_gives_the_bits_of_a_variant_of_its_own(exte
     assert np.array_equal(shared.state.headings, own.state.headings)
 
 
-def test_noting_a_group_keeps_exactly_the_candidates_that_count_in_order():
-    # cohesion's lanes note a group of four through a table of masks: every mask, after
-    # an earlier group, must leave near[:k] the candidates whose count is not 0, in order,
-    # and the earlier entries untouched
+def test_noting_a_group_keeps_exactly_the_displacements_that_count_in_order():
+    # cohesion's lanes note a group of four displacements through a compress: every mask,
+    # after an earlier group, must leave near[row, :k] the values whose count is not 0, in
+    # order, zeros after them in the group, and the earlier entries untouched
     from flocking.backends.cpu_kernels import note
 
+    values = (0.25, -3.0, 7.5, -0.0)
     for mask in range(16):
         w = [float(mask >> lane & 1) for lane in range(4)]
-        near = np.full(12, 99, dtype=np.uint64)
-        k = note(near, np.uint64(0), np.uint64(4), 1.0, 0.0, 0.0, 1.0)
-        k = note(near, k, np.uint64(40), *w)
-        assert k == 2 + sum(w)
-        assert near[:k].tolist() == [4, 7] + [40 + lane for lane in range(4) if w[lane]]
+        near = np.full((2, 12), 99.0)
+        k = note(near, np.uint64(0), 1, 1.0, 2.0, 3.0, 4.0, 1.0, 0.0, 0.0, 1.0)
+        k = note(near, k, 1, *values, *w)
+        kept = [values[lane] for lane in range(4) if w[lane]]
+        assert k == 2 + len(kept)
+        assert near[1, :k].tolist() == [1.0, 4.0] + kept
+        assert [math.copysign(1.0, v) for v in near[1, :k]] == [math.copysign(1.0, v) for v in [1.0, 4.0] + kept]
+        assert near[1, k:6].tolist() == [0.0] * (6 - k)
+        assert near[1, 6:].tolist() == [99.0] * 6 and near[0].tolist() == [99.0] * 12
+
+
+@pytest.mark.parametrize("form", ["avx512", "avx2", "select"])
+def test_every_form_of_the_compress_moves_the_chosen_values_to_the_front(form):
+    # each machine code the module may choose, on whichever of them this machine runs
+    import numba
+    from llvmlite.binding import llvm_version_info
+    from numba.core.codegen import get_host_cpu_features
+
+    from flocking.backends.cells import compress_form, compress_intrinsic
+
+    features = numba.core.config.CPU_FEATURES or get_host_cpu_features()
+    if form != "select" and compress_form(features, llvm_version_info) not in (form, "avx512"):
+        pytest.skip(f"this machine cannot run the {form} form")
+    compress = compress_intrinsic(form)
+
+    @numba.njit
+    def run(v, b):
+        return compress(v[0], v[1], v[2], v[3], b[0], b[1], b[2], b[3])
+
+    v = np.array([1.5, np.nan, -np.inf, 5e-324])
+    for mask in range(16):
+        b = np.array([bool(mask >> lane & 1) for lane in range(4)])
+        got = np.array(run(v, b))
+        want = np.zeros(4)
+        want[:b.sum()] = v[b]
+        assert np.array_equal(got, want, equal_nan=True), (mask, got)
+
+

@@ -28,7 +28,7 @@ differently). Without pair weights the sum includes the particle itself and goes
 update as it is; with them (a coupling, nematic signs, a vision cone, cohesion) each pair
 is weighed by :func:`flocking.rules.physics.neighbour`, the particle itself is taken out,
 and its own heading goes back with weight 1. Cohesion is summed in a second loop over the
-candidates that count, which the lanes note (:func:`cohere`).
+candidates that count, whose displacements the lanes note (:func:`note`, :func:`cohere`).
 
 Determinism. Work units are fixed by the model and a particle's new heading depends only
 on the sorted arrays and on counter-based random numbers; each unit's moment sums are
@@ -145,33 +145,29 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
 # -- weighted neighbour sums (pair weights, cohesion) ---------------------------------------
 
 
-# For each 4-bit mask of a group of four candidates (bit l: candidate l counts): the lanes
-# whose bit is set, in order, then zeros; and how many are set. With them note() writes a
-# group as four neighbouring entries (one vector store) and advances its index once. The
-# mask is the lanes' vector comparison taken whole (cells.mask4, one move): assembled bit by
-# bit, a dozen instructions a group, cohesion ran at 0.60 of the plain rate, not 0.65.
-COMPACT = np.array([[l for l in range(4) if m >> l & 1] + [0] * (4 - bin(m).count("1")) for m in range(16)],
-                   dtype=np.uint64)
+# How many of a group's four candidates count, for each 4-bit mask of them (bit l: candidate
+# l counts). The mask is the lanes' vector comparison taken whole (cells.mask4, one move).
 COUNT = np.array([bin(m).count("1") for m in range(16)], dtype=np.uint64)
 
 
 @numba.njit(cache=True, inline="always")
-def note(near, k, j, w0, w1, w2, w3):
-    """Note those of candidates ``j .. j + 3`` whose count ``w`` is not 0 in ``near``
-    from ``near[k]`` on, in order (``near[k .. k + 3]`` are written whatever counts):
-    returns the new ``k``.
+def note(near, k, row, v0, v1, v2, v3, w0, w1, w2, w3):
+    """Write those of ``v0 .. v3`` whose count ``w`` is not 0 to ``near[row]`` from
+    ``near[row, k]`` on, in order, then zeros (``near[row, k .. k + 3]`` are written
+    whatever counts): returns the new ``k``. The lanes note each coordinate of a group's
+    displacements so, in one vector store (:data:`flocking.backends.cells.compress4`).
 
-    >>> near = np.zeros(8, dtype=np.uint64)
-    >>> k = note(near, U0, np.uint64(20), 1.0, 0.0, 1.0, 1.0)
-    >>> int(k), near[:k].tolist()
-    (3, [20, 22, 23])
+    >>> near = np.full((1, 8), 9.0)
+    >>> k = note(near, U0, 0, 0.5, 0.0, -1.5, 2.0, 1.0, 0.0, 1.0, 1.0)
+    >>> int(k), near[0].tolist()
+    (3, [0.5, -1.5, 2.0, 0.0, 9.0, 9.0, 9.0, 9.0])
     """
-    m = cells.mask4(w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)
-    near[k] = j + COMPACT[m, 0]
-    near[k + U1] = j + COMPACT[m, 1]
-    near[k + np.uint64(2)] = j + COMPACT[m, 2]
-    near[k + np.uint64(3)] = j + COMPACT[m, 3]
-    return k + COUNT[m]
+    t = cells.compress4(v0, v1, v2, v3, w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)
+    near[row, k] = t[0]
+    near[row, k + U1] = t[1]
+    near[row, k + np.uint64(2)] = t[2]
+    near[row, k + np.uint64(3)] = t[3]
+    return k + COUNT[cells.mask4(w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)]
 
 
 # These read the flags (CPL, NEM, CONE, COH) as globals: compiled per variant by build() and
@@ -182,84 +178,76 @@ def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias):
     """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour`, without
     cohesion (see :func:`wreduce_2d`): it counts within ``R`` and ``j <= last``; the
     coupling of the particle's species to the candidate's is buffer row ``jr``. Returns
-    the weighed heading (2) and the count."""
+    the weighed heading (2), the count and the displacement (2)."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     d2 = dx * dx + dy * dy
     t = R.neighbour(2, dx, dy, 0.0, d2, (d2 < r2) & (j <= last), ux, uy, 0.0, buf[2, j], buf[3, j], 0.0,
                     buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, False, 0.0, 0.0, 0.0, 0.0)
-    return t[0], t[1], t[3]
+    return t[0], t[1], t[3], dx, dy
 
 
 def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias):
-    """:func:`pair_2d` in 3D: the weighed heading (3) and the count."""
+    """:func:`pair_2d` in 3D: the weighed heading (3), the count, the displacement (3)."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi
     d2 = dx * dx + dy * dy + dz * dz
     t = R.neighbour(3, dx, dy, dz, d2, (d2 < r2) & (j <= last), ux, uy, uz, buf[3, j], buf[4, j], buf[5, j],
                     buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, False, 0.0, 0.0, 0.0, 0.0)
-    return t[0], t[1], t[2], t[3]
+    return t[0], t[1], t[2], t[3], dx, dy, dz
 
 
-def force(buf, near, m, l, left, xi, yi, zi, coh):
-    """:func:`flocking.rules.physics.cohesion_term` of candidate ``near[m + l]`` of the buffer,
-    or zeros if ``l >= left`` (``near[m + l]`` is then a copy of a real one, see :func:`cohere`)."""
-    inside = l < left
-    j = near[m + l]
-    dx = buf[0, j] - xi
-    dy = buf[1, j] - yi
-    dz = buf[2, j] - zi if DIM == 3 else 0.0
-    return R.cohesion_term(dx, dy, dz, dx * dx + dy * dy + dz * dz, inside, coh[1], coh[2], coh[3], coh[4])
+def cohere(near, k, coh, sums, out, q):
+    """Cohesion of a particle: :func:`flocking.rules.physics.cohesion_term` of the ``k``
+    displacements noted in ``near`` (a row per coordinate), summed in four lanes as the
+    reductions sum (lane ``l`` takes terms ``l, l + 4, ...``), into rows ``DIM + 1`` on
+    of ``out[:, q]``: the pull (``DIM``), the push (``DIM``), the core count.
 
-
-def cohere(buf, near, k, xi, yi, zi, coh, out, q):
-    """Cohesion of a particle at ``(xi, yi, zi)``: :func:`flocking.rules.physics.cohesion_term`
-    summed over the ``k`` candidates ``near[:k]`` of the buffer that count, in four lanes
-    as the reductions sum, into rows ``DIM + 1`` on of ``out[:, q]``: the pull (``DIM``),
-    the push (``DIM``), the core count."""
+    The lanes' running sums are kept in ``sums``, a row per quantity: entry ``p + 4`` is
+    entry ``p`` plus term ``p``. An entry depends only on the one four before it, so LLVM
+    vectorises the loop four terms at a time, square roots and divisions included,
+    without reordering any addition; the last group's missing terms are zeros, weighed by
+    0 (``inside`` false)."""
     d = DIM
-    px0 = px1 = px2 = px3 = py0 = py1 = py2 = py3 = pz0 = pz1 = pz2 = pz3 = 0.0
-    qx0 = qx1 = qx2 = qx3 = qy0 = qy1 = qy2 = qy3 = qz0 = qz1 = qz2 = qz3 = 0.0
-    c0 = c1 = c2 = c3 = 0.0
-    # a last, partial group reads a real candidate, weighed by 0 (k > 0 whenever the loop runs)
-    near[k] = near[k + U1] = near[k + np.uint64(2)] = near[U0]
-    for m in range(U0, k, np.uint64(4)):
-        # lane l counts if l < left (m + l < k built the indices in a vector, then moved them out)
-        left = k - m
-        t0 = force(buf, near, m, U0, left, xi, yi, zi, coh)
-        t1 = force(buf, near, m, U1, left, xi, yi, zi, coh)
-        t2 = force(buf, near, m, np.uint64(2), left, xi, yi, zi, coh)
-        t3 = force(buf, near, m, np.uint64(3), left, xi, yi, zi, coh)
-        px0, px1, px2, px3 = px0 + t0[0], px1 + t1[0], px2 + t2[0], px3 + t3[0]
-        py0, py1, py2, py3 = py0 + t0[1], py1 + t1[1], py2 + t2[1], py3 + t3[1]
-        qx0, qx1, qx2, qx3 = qx0 + t0[3], qx1 + t1[3], qx2 + t2[3], qx3 + t3[3]
-        qy0, qy1, qy2, qy3 = qy0 + t0[4], qy1 + t1[4], qy2 + t2[4], qy3 + t3[4]
-        c0, c1, c2, c3 = c0 + t0[6], c1 + t1[6], c2 + t2[6], c3 + t3[6]
+    u4 = np.uint64(4)
+    for r in range(d):
+        near[r, k] = near[r, k + U1] = near[r, k + np.uint64(2)] = 0.0
+    for r in range(2 * d + 1):
+        sums[r, 0] = sums[r, 1] = sums[r, 2] = sums[r, 3] = 0.0
+    k4 = (k + np.uint64(3)) & ~np.uint64(3)
+    rc2, re, ra, slope = coh[1], coh[2], coh[3], coh[4]
+    for p in range(U0, k4):
+        dx = near[0, p]
+        dy = near[1, p]
+        dz = near[2, p] if d == 3 else 0.0
+        t = R.cohesion_term(dx, dy, dz, dx * dx + dy * dy + dz * dz, p < k, rc2, re, ra, slope)
+        sums[0, p + u4] = sums[0, p] + t[0]
+        sums[1, p + u4] = sums[1, p] + t[1]
+        sums[d, p + u4] = sums[d, p] + t[3]
+        sums[d + 1, p + u4] = sums[d + 1, p] + t[4]
         if d == 3:
-            pz0, pz1, pz2, pz3 = pz0 + t0[2], pz1 + t1[2], pz2 + t2[2], pz3 + t3[2]
-            qz0, qz1, qz2, qz3 = qz0 + t0[5], qz1 + t1[5], qz2 + t2[5], qz3 + t3[5]
-    o = d + 1
-    out[o, q], out[o + 1, q] = (px0 + px1) + (px2 + px3), (py0 + py1) + (py2 + py3)
-    out[o + d, q], out[o + d + 1, q] = (qx0 + qx1) + (qx2 + qx3), (qy0 + qy1) + (qy2 + qy3)
-    if d == 3:
-        out[o + 2, q], out[o + d + 2, q] = (pz0 + pz1) + (pz2 + pz3), (qz0 + qz1) + (qz2 + qz3)
-    out[o + 2 * d, q] = (c0 + c1) + (c2 + c3)
+            sums[2, p + u4] = sums[2, p] + t[2]
+            sums[5, p + u4] = sums[5, p] + t[5]
+        sums[2 * d, p + u4] = sums[2 * d, p] + t[6]
+    k1, k2, k3 = k4 + U1, k4 + np.uint64(2), k4 + np.uint64(3)
+    for r in range(2 * d + 1):
+        out[d + 1 + r, q] = (sums[r, k4] + sums[r, k1]) + (sums[r, k2] + sums[r, k3])
 
 
 # The weighed sums keep one scalar per lane and quantity, like the plain ones: held in
 # tuples, the lanes were not packed into SIMD registers (three times slower per candidate).
-# Cohesion is not summed in the lanes: they note the candidates that count (``near``:
-# :func:`note`, a group of four at a time, no branch), and
-# :func:`cohere` sums over those alone: its square root, division and piecewise force for
-# the few within reach, not for every candidate, and no more registers in the lanes.
+# Cohesion is not summed in the lanes: they note the displacements of the candidates that
+# count (``near``: :func:`note`, a group of four at a time, no branch), and :func:`cohere`
+# sums over those alone: its square root, division and piecewise force for the few within
+# reach, not for every candidate, and no more registers in the lanes.
 
 
-def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, near, out, o):
+def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, near, sums, out, o):
     """As :func:`reduce_2d` (the particle itself included, four lanes), each candidate
     weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count, and with
-    cohesion (:func:`cohere`, ``near`` its scratch) the pull (2), the push (2) and the core
-    count."""
+    cohesion (:func:`cohere`, ``near`` and ``sums`` its scratch) the pull (2), the push
+    (2) and the core count."""
     for i in range(i0, i1):
         xi = x[i]
         yi = y[i]
@@ -273,24 +261,25 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, near
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                p0, q0, w0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias)
-                p1, q1, w1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, bias)
-                p2, q2, w2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, cone, bias)
-                p3, q3, w3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, cone, bias)
+                p0, q0, w0, x0, y0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias)
+                p1, q1, w1, x1, y1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, bias)
+                p2, q2, w2, x2, y2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, cone, bias)
+                p3, q3, w3, x3, y3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, cone, bias)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
                 if COH:
-                    k = note(near, k, j, w0, w1, w2, w3)
+                    note(near, k, 0, x0, x1, x2, x3, w0, w1, w2, w3)
+                    k = note(near, k, 1, y0, y1, y2, y3, w0, w1, w2, w3)
         q = o + i - i0
         out[0, q] = (a0 + a1) + (a2 + a3)
         out[1, q] = (b0 + b1) + (b2 + b3)
         out[2, q] = (n0 + n1) + (n2 + n3)
         if COH:
-            cohere(buf, near, k, xi, yi, 0.0, coh, out, q)
+            cohere(near, k, coh, sums, out, q)
 
 
-def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, coh, near, out, o):
+def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, coh, near, sums, out, o):
     """:func:`wreduce_2d` in 3D; rows: heading sum (3), count, pull (3), push (3), core count."""
     for i in range(i0, i1):
         xi = x[i]
@@ -307,23 +296,26 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, co
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                p0, q0, r0, w0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
-                p1, q1, r1, w1 = pair_3d(buf, j + U1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
-                p2, q2, r2_, w2 = pair_3d(buf, j + np.uint64(2), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
-                p3, q3, r3, w3 = pair_3d(buf, j + np.uint64(3), last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                j1, j2, j3 = j + U1, j + np.uint64(2), j + np.uint64(3)
+                p0, q0, r0, w0, x0, y0, z0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                p1, q1, r1, w1, x1, y1, z1 = pair_3d(buf, j1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                p2, q2, r2_, w2, x2, y2, z2 = pair_3d(buf, j2, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                p3, q3, r3, w3, x3, y3, z3 = pair_3d(buf, j3, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
                 if COH:
-                    k = note(near, k, j, w0, w1, w2, w3)
+                    note(near, k, 0, x0, x1, x2, x3, w0, w1, w2, w3)
+                    note(near, k, 1, y0, y1, y2, y3, w0, w1, w2, w3)
+                    k = note(near, k, 2, z0, z1, z2, z3, w0, w1, w2, w3)
         q = o + i - i0
         out[0, q] = (a0 + a1) + (a2 + a3)
         out[1, q] = (b0 + b1) + (b2 + b3)
         out[2, q] = (c0 + c1) + (c2 + c3)
         out[3, q] = (n0 + n1) + (n2 + n3)
         if COH:
-            cohere(buf, near, k, xi, yi, zi, coh, out, q)
+            cohere(near, k, coh, sums, out, q)
 
 
 @numba.njit(cache=True, inline="always")
@@ -597,7 +589,8 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
     ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
     out = np.empty((4 if not COH else 12, 16))  # rows of the per-slot sums
-    near = np.empty(buf.shape[1] + 4 if COH else 0, dtype=np.uint64)  # wreduce_*'s scratch
+    near = np.empty((d, buf.shape[1] + 4 if COH else 0))  # wreduce_*'s scratch: noted displacements
+    sums = np.empty((2 * d + 1, near.shape[1] + 4))  # and cohesion's running sums
     acc = np.zeros(partial.shape[1])
     while True:
         # units go to whichever thread is free: balanced when particles cluster or
@@ -611,8 +604,9 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
         else:
             line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
                                                                shifts, buf, rows, out, d)
-        if COH and near.shape[0] < buf.shape[1] + 4:
-            near = np.empty(buf.shape[1] + 4, dtype=np.uint64)
+        if COH and near.shape[1] < buf.shape[1] + 4:
+            near = np.empty((d, buf.shape[1] + 4))
+            sums = np.empty((2 * d + 1, near.shape[1] + 4))
         # first the sums of every particle of the segment, then the updates in one
         # loop: its iterations are independent, so the processor overlaps their long
         # chains of dependent operations (it cannot across the reductions)
@@ -625,10 +619,10 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
                 reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
             elif d == 2:
                 wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0],
-                           tb.bias[0], tb.cohesion, near, out, start[c] - s0)
+                           tb.bias[0], tb.cohesion, near, sums, out, start[c] - s0)
             else:
                 wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0],
-                           tb.bias[0], tb.cohesion, near, out, start[c] - s0)
+                           tb.bias[0], tb.cohesion, near, sums, out, start[c] - s0)
         px = 0.0
         py = 0.0
         pz = 0.0
@@ -726,7 +720,7 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
 
 
 #: the functions compiled once per variant, callees first: each reads the flags as globals
-VARIANT = ("pair_2d", "pair_3d", "force", "cohere", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums",
+VARIANT = ("pair_2d", "pair_3d", "cohere", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums",
            "nearest_sums", "remember", "advance", "add_moments", "line_units", "search_blocks")
 
 
