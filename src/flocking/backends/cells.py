@@ -150,18 +150,18 @@ def compress_ir(builder, values, bits, form):
     else:
         # by the 4-bit mask, a table row: the source lane of each lane of the result, and
         # all ones where a lane holds a value (zeros after the last)
-        rows = [[lane for lane in range(4) if m >> lane & 1] for m in range(16)]
-        keep = table(builder, "flocking_compress_keep", vt, [[-1] * len(r) + [0] * (4 - len(r)) for r in rows])
+        counts = [bin(m).count("1") for m in range(16)]
+        rows = [[lane for lane in range(4) if m >> lane & 1] + [0] * (4 - counts[m]) for m in range(16)]
+        keep = table(builder, "flocking_compress_keep", vt, [[-1] * c + [0] * (4 - c) for c in counts])
         m = builder.zext(builder.bitcast(mask, ir.IntType(4)), i64)
         if form == "avx2":  # vpermd: the 32-bit halves of each source lane
             v8 = ir.VectorType(i32, 8)
-            halves = [[h for lane in r + [0] * (4 - len(r)) for h in (2 * lane, 2 * lane + 1)] for r in rows]
+            halves = [[h for lane in r for h in (2 * lane, 2 * lane + 1)] for r in rows]
             source = builder.load(builder.gep(table(builder, "flocking_compress_halves", v8, halves), [i64(0), m]))
             fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(v8, [v8, v8]), "llvm.x86.avx2.permd")
             out = builder.bitcast(builder.call(fn, [builder.bitcast(vec, v8), source]), vt)
         else:
-            source = builder.load(builder.gep(table(builder, "flocking_compress_lanes", vt,
-                                                    [r + [0] * (4 - len(r)) for r in rows]), [i64(0), m]))
+            source = builder.load(builder.gep(table(builder, "flocking_compress_lanes", vt, rows), [i64(0), m]))
             out = ir.Constant(vt, [0] * 4)
             for lane in range(4):
                 at = ir.Constant(ir.VectorType(i32, 4), [lane] * 4)
@@ -201,12 +201,14 @@ def compress_intrinsic(form: str):
     return compress
 
 
+#: the form of :data:`compress4` for the machine numba compiles for
+COMPRESS = compress_form(numba.core.config.CPU_FEATURES or get_host_cpu_features(), llvm_version_info)
+
 #: ``compress4(v0, v1, v2, v3, b0, b1, b2, b3)``: those of the four doubles ``v`` whose
 #: ``b`` is true, in order, then zeros (a tuple of four), for numba-compiled code, in the
-#: form for the machine numba compiles for. It writes cohesion's noted displacements a
+#: form :data:`COMPRESS`. It writes cohesion's noted displacements a
 #: group of four at a time: :func:`flocking.backends.cpu_kernels.note`.
-compress4 = compress_intrinsic(compress_form(numba.core.config.CPU_FEATURES or get_host_cpu_features(),
-                                             llvm_version_info))
+compress4 = compress_intrinsic(COMPRESS)
 
 
 # -- the cell structure: parallel stable counting sort ---------------------------------
