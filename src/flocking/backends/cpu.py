@@ -53,7 +53,7 @@ import numpy as np  # noqa: E402
 from ..model import Model, ParameterError  # noqa: E402
 from ..observables import moment_width  # noqa: E402
 from ..state import State  # noqa: E402
-from . import cells, cpu_kernels  # noqa: E402
+from . import cells, cpu_kernels, frames  # noqa: E402
 from .features import features, ring_width, step, tables  # noqa: E402
 
 
@@ -215,7 +215,7 @@ class CPUBackend:
         new_pos, new_head = self._scratch()
         points = new_pos.reshape(-1).view(np.float32)[: 3 * n].reshape(n, 3)
         velocities = new_head.reshape(-1).view(np.float32)[: 3 * n].reshape(n, 3)
-        cells.write_frame(self._pos, self._head, self._spd, self._ids, self._box, points, velocities)
+        frames.write_frame(self._pos, self._head, self._spd, self._ids, self._box, points, velocities)
         return points, velocities
 
     def advance(self, steps: int) -> np.ndarray:

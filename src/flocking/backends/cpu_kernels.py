@@ -48,7 +48,7 @@ import numpy as np
 
 from ..rules import compile as compile_rules
 from ..rules import rebind
-from . import cells
+from . import cells, intrinsics
 from .cells import ALL, U1
 from .features import Features
 
@@ -146,7 +146,7 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
 
 
 # How many of a group's four candidates count, for each 4-bit mask of them (bit l: candidate
-# l counts). The mask is the lanes' vector comparison taken whole (cells.mask4, one move).
+# l counts). The mask is the lanes' vector comparison taken whole (intrinsics.mask4, one move).
 COUNT = np.array([bin(m).count("1") for m in range(16)], dtype=np.uint64)
 
 
@@ -155,19 +155,19 @@ def note(near, k, row, v0, v1, v2, v3, w0, w1, w2, w3):
     """Write those of ``v0 .. v3`` whose count ``w`` is not 0 to ``near[row]`` from
     ``near[row, k]`` on, in order, then zeros (``near[row, k .. k + 3]`` are written
     whatever counts): returns the new ``k``. The lanes note each coordinate of a group's
-    displacements so, in one vector store (:data:`flocking.backends.cells.compress4`).
+    displacements so, in one vector store (:data:`flocking.backends.intrinsics.compress4`).
 
     >>> near = np.full((1, 8), 9.0)
     >>> k = note(near, U0, 0, 0.5, 0.0, -1.5, 2.0, 1.0, 0.0, 1.0, 1.0)
     >>> int(k), near[0].tolist()
     (3, [0.5, -1.5, 2.0, 0.0, 9.0, 9.0, 9.0, 9.0])
     """
-    t = cells.compress4(v0, v1, v2, v3, w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)
+    t = intrinsics.compress4(v0, v1, v2, v3, w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)
     near[row, k] = t[0]
     near[row, k + U1] = t[1]
     near[row, k + np.uint64(2)] = t[2]
     near[row, k + np.uint64(3)] = t[3]
-    return k + COUNT[cells.mask4(w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)]
+    return k + COUNT[intrinsics.mask4(w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)]
 
 
 # These read the flags (CPL, NEM, CONE, COH) as globals: compiled per variant by build() and
@@ -460,7 +460,7 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
     if p.delay > 0:
         # ring rows are read by particle id, in no particular order: ask for the row a few
         # particles ahead so that its cache miss overlaps work
-        cells.prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
+        intrinsics.prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
         if not WEIGHTED:  # the ring holds the others' sum
             s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
         s = remember(ring, slot, pid, s)
@@ -595,7 +595,7 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     while True:
         # units go to whichever thread is free: balanced when particles cluster or
         # when another program holds a core; a unit's result never depends on who
-        u = cells.fetch_add(counter)
+        u = intrinsics.fetch_add(counter)
         if u >= nunits:
             break
         if CPL:
@@ -684,7 +684,7 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
     bs = np.empty(max(k, 1), dtype=np.int64)
     acc = np.zeros(partial.shape[1])
     while True:
-        b = cells.fetch_add(counter)
+        b = intrinsics.fetch_add(counter)
         if b >= nblocks:
             break
         s0 = b * cells.BLOCK
