@@ -17,7 +17,6 @@ import numpy as np
 
 from flocking import Model, State
 from flocking.backends.cpu import CPUBackend
-from flocking.play.budget import step_cost
 
 CASES = {
     "plain": {},
@@ -54,7 +53,7 @@ def main() -> None:
                 side = model.box[0]
                 state.positions[:] = np.random.default_rng(1).uniform(0.2 * side, 0.34 * side, size=(n, 2))
             times.append(best_step(model, state) * 1e9)
-            counts.append(step_cost(model, state.positions)[1] * n)
+            counts.append(CPUBackend.step_cost(model, state.positions)[1] * n)
         particle, candidate = np.linalg.solve([[n, counts[0]], [n, counts[1]]], times)
         print(f"| {name} | {times[0] / 1e6:.1f} | {times[1] / 1e6:.1f} | {particle:.0f} | {candidate:.1f} |")
 

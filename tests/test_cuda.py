@@ -192,7 +192,7 @@ def extended(names):
     # from the oracle's state, against the reference: every difference, moments included
     sys.path.insert(0, TESTS)
     from test_extensions import sized
-    from flocking.state import inside_obstacles
+    from flocking.space import Space
 
     out = {}
     for key in names:
@@ -213,7 +213,7 @@ def extended(names):
                                 ("dmoments", gpu.moments - ref.moments)):
                 worst[key_] = max(worst[key_], float(np.abs(value).max()))
             inside &= bool(((a.positions >= 0) & (a.positions <= box)).all())
-            outside |= bool(inside_obstacles(model, a.positions).any())
+            outside |= bool(Space.of(model).in_obstacle(a.positions).any())
             state = b
         out[key] = dict(worst, inside=inside, in_obstacle=outside,
                         width=[list(gpu.moments.shape), list(ref.moments.shape)])
@@ -490,7 +490,7 @@ def test_device_extensions_match_reference(name, dim, precision):
     reference, one step at a time from the reference's state (1500 particles; in the
     box-below-3R case all of them in a box 2.6 wide), moment sums included."""
     from flocking.backends.cuda import CUDABackend
-    from flocking.state import inside_obstacles
+    from flocking.space import Space
     from test_extensions import assert_same_state, sized
 
     box = {} if name == "box-below-3R" else {"box": 20.0 if dim == 2 else 8.0}
@@ -504,7 +504,7 @@ def test_device_extensions_match_reference(name, dim, precision):
         assert_same_state(gpu_backend.state, ref.state, model, tol)
         positions = gpu_backend.state.positions
         assert ((positions >= 0) & (positions <= np.asarray(model.box))).all()
-        assert not inside_obstacles(model, positions).any()
+        assert not Space.of(model).in_obstacle(positions).any()
         state = ref.state
 
 

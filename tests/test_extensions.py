@@ -23,7 +23,7 @@ from flocking import Model, Simulation, State
 from flocking.backends.cpu import CPUBackend, kernel_name
 from flocking.backends.reference import ReferenceBackend
 from flocking.model import ParameterError
-from flocking.state import inside_obstacles
+from flocking.space import Space
 
 SRC = os.path.dirname(os.path.dirname(flocking.__file__))
 
@@ -388,7 +388,7 @@ def test_particles_never_inside_an_obstacle_or_outside_a_wall(kw):
     for _ in range(15):
         sim.run(2)
         x = sim.state.positions
-        assert not inside_obstacles(model, x).any()
+        assert not Space.of(model).in_obstacle(x).any()
         assert np.all((x >= 0) & (x <= box))
         assert np.allclose(np.linalg.norm(sim.state.headings, axis=1), 1.0, atol=1e-12)
 

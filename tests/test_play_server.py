@@ -28,7 +28,8 @@ from flocking import Model, Simulation, State
 from flocking.cli import main
 from flocking.config import RunConfig
 from flocking.play import session as session_module
-from flocking.play.budget import session_bytes, step_cost
+from flocking.backends.cpu import CPUBackend
+from flocking.play.budget import session_bytes
 from flocking.play.session import (MAX_ERRORS, MAX_MESSAGE, MAX_N, MAX_STEP_SECONDS, Session, decode_frame,
                                    encode_frame, parse_message)
 
@@ -471,7 +472,7 @@ def test_a_crowded_flock_is_paused_before_a_slow_step(monkeypatch):
     s = Session(model)
     s.take_replies()
     packed = State(np.full((model.n, 2), 1.5), State.random(model).headings, np.full(model.n, 0.5))
-    seconds, candidates = step_cost(model, packed.positions)
+    seconds, candidates = CPUBackend.step_cost(model, packed.positions)
     assert candidates == model.n and seconds > MAX_STEP_SECONDS  # every particle in one cell
     s.sim = Simulation(model, packed)  # as if the flock had crowded there
     monkeypatch.setattr(session_module, "PRICE_EVERY", 0.0)
@@ -490,7 +491,7 @@ def test_a_crowded_flock_is_paused_before_a_slow_step(monkeypatch):
 
 def test_closing_a_tab_stops_a_slow_run_within_a_step():
     slow = Model(n=3000, density=2.0, radius=15.0, seed=2)  # two cells a side: every pair a candidate
-    seconds = step_cost(slow, State.random(slow).positions)[0]
+    seconds = CPUBackend.step_cost(slow, State.random(slow).positions)[0]
     assert 0.1 < seconds < MAX_STEP_SECONDS
     app = create_app(slow)
     with TestClient(app) as c:
@@ -555,7 +556,7 @@ def test_a_tab_holds_no_more_than_its_budget_says(model):
 
 
 def test_each_running_tab_gets_an_equal_share_of_the_cores():
-    cost = step_cost(SMALL, State.random(SMALL).positions)[0]
+    cost = CPUBackend.step_cost(SMALL, State.random(SMALL).positions)[0]
     cores = cost / 0.4  # one tab alone: a frame every 0.4 s; two tabs: every 0.8 s
     with TestClient(create_app(SMALL, cores=cores)) as c:
         with c.websocket_connect("/ws") as one:
@@ -758,7 +759,7 @@ def test_step_cost_counts_each_neighbouring_cell_once(dim):
             offsets = itertools.product((-1, 0, 1), repeat=dim)
             around = {tuple((c[a] + o[a]) % nc[a] for a in range(dim)) for o in offsets}
             expected += k * sum(count.get(b, 0) for b in around)
-        assert step_cost(model, positions)[1] == expected / model.n
+        assert CPUBackend.step_cost(model, positions)[1] == expected / model.n
 
 
 # -- the command ------------------------------------------------------------------------
@@ -821,9 +822,9 @@ def answers(s, message):
 
 
 def inside(model, positions):
-    from flocking.state import inside_obstacles
+    from flocking.space import Space
 
-    return inside_obstacles(model, positions)
+    return Space.of(model).in_obstacle(positions)
 
 
 @pytest.mark.parametrize("params, check", [
@@ -995,15 +996,15 @@ def test_a_new_dimension_keeps_the_walls_of_x_and_y_and_drops_obstacles_and_chir
 
 def test_the_extended_step_is_priced_higher_and_a_slow_one_is_refused_naming_its_switch():
     positions = State.random(EXT).positions
-    plain = step_cost(EXT, positions)[0]
-    walls = step_cost(EXT.replace(boundary="wall"), positions)[0]
-    extended = step_cost(EXT.replace(vision=2.0), positions)[0]
+    plain = CPUBackend.step_cost(EXT, positions)[0]
+    walls = CPUBackend.step_cost(EXT.replace(boundary="wall"), positions)[0]
+    extended = CPUBackend.step_cost(EXT.replace(vision=2.0), positions)[0]
     small = Model(n=EXT.n, box=2.5, noise=0.5, vision=2.0)  # every particle a candidate of every other
-    small_box = step_cost(small, State.random(small).positions)[0]
+    small_box = CPUBackend.step_cost(small, State.random(small).positions)[0]
     # measured: walls as the plain step; a cone about 1.2 times per particle and 3 per
     # candidate; the scalar step of a box under 3R 7 and 20 times (flocking/play/budget.py)
     assert plain <= walls < 1.3 * plain and 1.2 * plain < extended < 2 * plain and small_box > 10 * extended
-    with_obstacles = step_cost(EXT.replace(vision=2.0, obstacles=[{"centre": [7.0, 7.0], "radius": 1.0}] * 1),
+    with_obstacles = CPUBackend.step_cost(EXT.replace(vision=2.0, obstacles=[{"centre": [7.0, 7.0], "radius": 1.0}] * 1),
                                positions)[0]
     assert with_obstacles == pytest.approx(extended + 25e-9 * EXT.n)
     s = ext_session(Model(n=200_000, density=60.0, noise=0.5))  # plain: 0.28 s a step, with the cone 0.74 s

@@ -25,6 +25,7 @@ import numbers
 from typing import Any
 
 from .checks import ParameterError, comma_numbers, fail, real
+from .rules.geometry import minimum_image
 
 BOUNDARIES = ("periodic", "wall")
 
@@ -265,12 +266,15 @@ def unit_vector(v: tuple[float, ...]) -> tuple[float, ...]:
 
 def periodic_distance(a: tuple[float, ...], b: tuple[float, ...], box: tuple[float, ...],
                       walls: tuple[bool, ...]) -> float:
-    """Distance between two points, with the minimum image on periodic axes."""
+    """Distance between two points in the box, with the minimum image on periodic axes
+    (:func:`flocking.rules.geometry.minimum_image`).
+
+    >>> periodic_distance((1.0, 1.0), (9.0, 9.0), (10.0, 10.0), (False, True))
+    8.246211251235321
+    """
     total = 0.0
     for x, y, length, wall in zip(a, b, box, walls):
-        dx = abs(x - y)
-        if not wall:
-            dx = min(dx, length - dx)
+        dx = minimum_image(x - y, length, math.inf if wall else length / 2)
         total += dx * dx
     return math.sqrt(total)
 

@@ -193,12 +193,69 @@ class Space:
         return np.where(self.periodic, x, np.clip(x, origin, origin + self.lengths))
 
     def in_obstacle(self, points: Sequence) -> np.ndarray:
-        """Whether each point lies strictly inside an obstacle (nearest image)."""
+        """Whether each point lies strictly inside an obstacle: its squared distance to
+        the centre (nearest image) below the radius squared."""
         x = np.asarray(points, dtype=np.float64)
         inside = np.zeros(x.shape[:-1], dtype=bool)
         for row in self.obstacles:
-            inside |= self.distance(np.asarray(row[:-1]), x) < row[-1]
+            d = self.displacement(np.asarray(row[:-1]), x)
+            inside |= np.sum(d * d, axis=-1) < row[-1] * row[-1]
         return inside
+
+    def obstacle_images(self) -> np.ndarray:
+        """Every obstacle and each of its periodic images that reaches into the box, rows
+        ``(*centre, radius)`` in this space's coordinates, sorted by centre: what a
+        picture draws (an obstacle across a periodic side shows on both).
+
+        >>> Space((10.0, 10.0), walls=(False, True), obstacles=[(9.5, 5.0, 1.0)]).obstacle_images().tolist()
+        [[-0.5, 5.0, 1.0], [9.5, 5.0, 1.0]]
+        """
+        rows = np.asarray(self.obstacles, dtype=np.float64).reshape(-1, self.dim + 1)
+        if not len(rows):
+            return rows
+        middle = np.asarray(self.origin) + self.lengths / 2
+        images = []
+        for shift in self.image_shifts():
+            moved = rows.copy()
+            moved[:, :-1] += shift
+            reaches = np.all(np.abs(moved[:, :-1] - middle) - moved[:, -1:] < self.lengths / 2, axis=1)
+            images.append(moved[reaches])
+        out = np.concatenate(images)
+        return out[np.lexsort(out.T[::-1])]
+
+    def image_shifts(self) -> np.ndarray:
+        """The shifts to a point's image in the neighbouring boxes (and 0) along periodic
+        axes, rows of ``dim``."""
+        images = np.array(np.meshgrid(*[(-1, 0, 1) if p else (0,) for p in self.periodic], indexing="ij"))
+        return images.reshape(self.dim, -1).T * self.lengths
+
+    def clear_obstacles(self, points: np.ndarray, headings: np.ndarray, margin: float) -> int:
+        """Move every point strictly inside an obstacle (nearest image) to ``margin``
+        outside its surface, along the line from the centre (``-heading`` from the centre
+        itself), and turn a heading that points inward back out by reflection; in place.
+        Returns how many points moved. What a playground does to the particles an
+        obstacle is dropped on; a step's bounce is the engine's rule, not this.
+
+        >>> space = Space((10.0, 10.0), obstacles=[(5.0, 5.0, 2.0)])
+        >>> x, u = np.array([[5.5, 5.0], [9.0, 9.0]]), np.array([[-1.0, 0.0], [1.0, 0.0]])
+        >>> space.clear_obstacles(x, u, 1e-6), x[0].round(5).tolist(), u[0].tolist()
+        (1, [7.0, 5.0], [1.0, 0.0])
+        """
+        moved = 0
+        for row in self.obstacles:
+            centre, radius = np.asarray(row[:-1]), row[-1]
+            r = self.displacement(centre, points)
+            dist = np.sqrt(np.einsum("ij,ij->i", r, r))
+            inside = np.flatnonzero(dist < radius)
+            if not inside.size:
+                continue
+            u, dist = headings[inside], dist[inside, None]
+            normal = np.where(dist > 0.0, r[inside] / np.where(dist > 0.0, dist, 1.0), -u)
+            points[inside] = self.wrap(centre + (radius + margin) * normal)
+            dot = np.einsum("ij,ij->i", u, normal)[:, None]
+            headings[inside] = np.where(dot < 0.0, u - 2.0 * dot * normal, u)
+            moved += inside.size
+        return moved
 
     def boxes_touch_obstacle(self, lower: np.ndarray, side: float) -> np.ndarray:
         """Whether each cube of side ``side`` with lower corner ``lower`` (rows, in this
@@ -211,11 +268,9 @@ class Space:
         """
         lower = np.asarray(lower, dtype=np.float64).reshape(-1, self.dim)
         touch = np.zeros(len(lower), dtype=bool)
-        images = np.array(np.meshgrid(*[(-1, 0, 1) if p else (0,) for p in self.periodic], indexing="ij"))
-        shifts = images.reshape(self.dim, -1).T * self.lengths
         for row in self.obstacles:
             centre, radius = np.asarray(row[:-1]), row[-1]
-            for shift in shifts:
+            for shift in self.image_shifts():
                 c = centre + shift
                 nearest = np.clip(c, lower, lower + side)
                 touch |= np.sum((nearest - c) ** 2, axis=1) < radius * radius

@@ -23,6 +23,7 @@ import numpy as np
 
 from . import rng
 from .model import Model, ParameterError
+from .space import Space
 
 _BLOCK = 1 << 16  # particles drawn at a time by the random constructors
 
@@ -116,9 +117,7 @@ class State:
         if not (norms > 0).all():
             raise ParameterError(f"init: the last frame of {os.fspath(path)!r} has particles with zero "
                                  "velocity, so no heading")
-        box = np.asarray(model.box)
-        positions = np.mod(frame.positions.astype(np.float64) + box / 2, box)
-        positions = np.where(positions >= box, 0.0, positions)
+        positions = Space.of(model).inside(frame.positions.astype(np.float64) + np.asarray(model.box) / 2)
         headings = frame.headings.astype(np.float64)
         headings /= np.linalg.norm(headings, axis=1, keepdims=True)
         return cls(positions, headings, initial_speeds(model), int(frame.step))
@@ -146,6 +145,7 @@ def random_positions(model: Model, ids: np.ndarray) -> np.ndarray:
     particle inside an obstacle draws again, until it is outside (the obstacles leave at
     least a tenth of the box free, so a few draws do)."""
     box = np.asarray(model.box)
+    space = Space.of(model)
     positions = np.empty((len(ids), model.dim))
     todo = np.arange(len(ids))
     draw = 0
@@ -154,21 +154,9 @@ def random_positions(model: Model, ids: np.ndarray) -> np.ndarray:
             positions[todo, a] = rng.uniform(model.seed, draw, ids[todo], rng.POSITION + a) * box[a]
         # u * L can round up to L itself: keep the half-open interval
         positions[todo] = np.where(positions[todo] >= box, 0.0, positions[todo])
-        todo = todo[inside_obstacles(model, positions[todo])]
+        todo = todo[space.in_obstacle(positions[todo])]
         draw += 1
     return positions
-
-
-def inside_obstacles(model: Model, positions: np.ndarray) -> np.ndarray:
-    """Whether each position lies strictly inside some obstacle (minimum image on periodic axes)."""
-    inside = np.zeros(len(positions), dtype=bool)
-    box = np.asarray(model.box)
-    periodic = ~np.asarray(model.walls)
-    for ob in model.obstacles:
-        r = positions - np.asarray(ob.centre)
-        r = np.where(periodic, r - box * np.round(r / box), r)
-        inside |= np.einsum("ij,ij->i", r, r) < ob.radius * ob.radius
-    return inside
 
 
 def random_unit_vectors(dim: int, u0: np.ndarray, u1: np.ndarray) -> np.ndarray:

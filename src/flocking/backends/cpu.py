@@ -53,7 +53,7 @@ import numpy as np  # noqa: E402
 from ..model import Model, ParameterError  # noqa: E402
 from ..observables import moment_width  # noqa: E402
 from ..state import State  # noqa: E402
-from . import cells, cpu_kernels, frames  # noqa: E402
+from . import cells, cpu_cost, cpu_kernels, frames  # noqa: E402
 from .features import features, ring_width, step, tables  # noqa: E402
 
 
@@ -89,6 +89,29 @@ class CPUBackend:
         speeds = 24 if model.speeds == "uniform" else 0
         per_particle = 32 * d + 12 + speeds + delay + 16 * d + 8
         return model.n * per_particle + 4 * (numba.get_num_threads() + 1) * int(np.prod(cells.cell_grid(model)))
+
+    @staticmethod
+    def step_cost(model: Model, positions: np.ndarray) -> tuple[float, float]:
+        """Estimated seconds of one core for one step of ``model`` from ``positions``
+        (N, d), and the neighbour candidates a particle that the estimate counted
+        (:mod:`flocking.backends.cpu_cost`: measured nanoseconds per particle and per
+        candidate of the kernel this model gets).
+
+        >>> model = Model(n=4000, density=2.0)
+        >>> round(CPUBackend.step_cost(model, np.full((4000, 2), 0.5))[1])  # all in one cell
+        4000
+        """
+        return cpu_cost.step_cost(model, positions, kernel_name(model))
+
+    @staticmethod
+    def kernel_kind(model: Model) -> str:
+        """The kind of step ``model`` gets, as :data:`flocking.backends.cpu_cost.COSTS`
+        prices it (``lines``, ``extended weighted``, ...).
+
+        >>> CPUBackend.kernel_kind(Model(n=100, box=10.0, vision=2.0))
+        'extended weighted'
+        """
+        return cpu_cost.kind(model, kernel_name(model))
 
     def __init__(self, model: Model, state: State, memory: dict | None = None):
         self.model = model

@@ -25,6 +25,7 @@ import typing
 import numpy as np
 
 from ..model import Model
+from ..space import Space
 
 
 class Features(typing.NamedTuple):
@@ -100,7 +101,6 @@ class Tables(typing.NamedTuple):
 def tables(model: Model) -> Tables:
     """The :class:`Tables` of ``model``."""
     d = model.dim
-    box = np.asarray(model.box, dtype=np.float64)
     walls = np.asarray(model.walls, dtype=np.int64)
     obstacles = np.array([[*o.centre, o.radius] for o in model.obstacles], dtype=np.float64).reshape(-1, d + 1)
     turn = [omega * model.dt for omega in model.species_values("chirality")]
@@ -117,7 +117,7 @@ def tables(model: Model) -> Tables:
     if model.cohesion:
         rc, re, ra = model.cohesion_radii
         cohesion[:] = model.cohesion, rc * rc, re, ra, 1.0 / (4.0 * (ra - re))
-    return Tables(walls=walls, half=np.where(walls != 0, np.inf, box / 2.0), obstacles=obstacles,
+    return Tables(walls=walls, half=Space.of(model).half, obstacles=obstacles,
                   bounds=np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64),
                   species=species, coupling=coupling, field=field, cone=cone, cohesion=cohesion,
                   bias=np.array([0.0 if model.alignment_rule == "nematic" else 4.0]))

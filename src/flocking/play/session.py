@@ -41,7 +41,7 @@ the walls) make that point free (:func:`clear_obstacles`). A change of dimension
 walls of x and y (z is periodic) and drops the obstacles and, in 3D, the chirality.
 
 Before a model runs, the cost of its step is estimated from where the particles are
-(:func:`~flocking.play.budget.step_cost`), and again while it runs: a model whose step
+(:meth:`~flocking.backends.cpu.CPUBackend.step_cost`), and again while it runs: a model whose step
 would take more than :data:`MAX_STEP_SECONDS` is refused, and a flock that crowds until
 its step would is paused with a message. So is a flock that turns non-finite. Steps are
 taken one at a time, so a closed tab (:meth:`Session.close`) stops within one step.
@@ -83,12 +83,14 @@ from typing import Any
 import numba
 import numpy as np
 
+from ..backends.cpu import CPUBackend
 from ..config import RunConfig
 from ..extensions import Obstacle, periodic_distance
 from ..model import Model, ParameterError
 from ..simulation import Simulation
+from ..space import Space
 from ..state import State, initial_speeds
-from .budget import Budget, session_bytes, step_cost
+from .budget import Budget, session_bytes
 
 #: Limits that keep one tab from taking the machine down.
 MAX_N = 200_000
@@ -101,7 +103,7 @@ MAX_DELAY_BYTES = 2**28
 #: vectorial noise above this is refused: at 10 the noise term is already ten times the
 #: largest sum of headings it is added to
 MAX_VECTORIAL_NOISE = 10.0
-#: estimated seconds of one step (:func:`~flocking.play.budget.step_cost`); a model or a
+#: estimated seconds of one step (:meth:`~flocking.backends.cpu.CPUBackend.step_cost`); a model or a
 #: flock that would step slower is refused or paused
 MAX_STEP_SECONDS = 0.5
 #: a running flock's step is priced again after this many seconds
@@ -253,7 +255,7 @@ def check_step(model: Model, positions: np.ndarray, name: str = "n") -> float:
     ...
     flocking.checks.ParameterError: radius: one step would take about 0.9 s here (6000 neighbour candidates a particle; at most 0.5 s in flocking play); lower radius, n or density
     """
-    seconds, candidates = step_cost(model, positions)
+    seconds, candidates = CPUBackend.step_cost(model, positions)
     if seconds > MAX_STEP_SECONDS:
         lower = "k or n" if model.neighbours == "topological" else "radius, n or density"
         if model.extended:
@@ -471,7 +473,7 @@ class Session:
         if advance and self.running:
             steps += self.steps_per_frame
         if steps and time.monotonic() - self._priced >= PRICE_EVERY:  # the flock may have crowded
-            self.step_seconds = step_cost(self.model, self.sim.state.positions)[0]
+            self.step_seconds = CPUBackend.step_cost(self.model, self.sim.state.positions)[0]
             self._priced = time.monotonic()
         done = self._advance(steps)
         if (changed or done) and self.broken is None:
@@ -581,27 +583,7 @@ def clear_obstacles(model: Model, positions: np.ndarray, headings: np.ndarray) -
     >>> clear_obstacles(model, x, u), x[0].round(5).tolist(), u[0].tolist()  # out to the right, turned round
     (1, [7.0, 5.0], [1.0, 0.0])
     """
-    box = np.asarray(model.box, dtype=np.float64)
-    periodic = ~np.asarray(model.walls)
-    margin = 1e-6 * model.max_speed * model.dt
-    moved = 0
-    for ob in model.obstacles:
-        centre = np.asarray(ob.centre)
-        r = positions - centre
-        r = np.where(periodic, r - box * np.round(r / box), r)
-        dist = np.sqrt(np.einsum("ij,ij->i", r, r))
-        inside = np.flatnonzero(dist < ob.radius)
-        if not inside.size:
-            continue
-        u, dist = headings[inside], dist[inside, None]
-        normal = np.where(dist > 0.0, r[inside] / np.where(dist > 0.0, dist, 1.0), -u)
-        x = centre + (ob.radius + margin) * normal
-        x = np.where(periodic, np.mod(x, box), x)
-        positions[inside] = np.where(periodic & (x >= box), 0.0, x)
-        dot = np.einsum("ij,ij->i", u, normal)[:, None]
-        headings[inside] = np.where(dot < 0.0, u - 2.0 * dot * normal, u)
-        moved += inside.size
-    return moved
+    return Space.of(model).clear_obstacles(positions, headings, 1e-6 * model.max_speed * model.dt)
 
 
 # -- frames ------------------------------------------------------------------------------

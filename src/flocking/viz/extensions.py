@@ -15,11 +15,10 @@
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
 from ..model import ParameterError
+from ..space import Space
 from .colors import Theme, get_theme
 
 #: What particles can be coloured by: ``auto`` is ``species`` for a frame with several
@@ -57,31 +56,19 @@ def species_colors(count: int, theme: Theme) -> np.ndarray:
 
 def obstacle_images(obstacles: np.ndarray, box_lengths, walls) -> np.ndarray:
     """Rows ``(centre..., radius)`` of every copy of the obstacles (centred coordinates)
-    that reaches into the box: shifted by a box length along periodic axes."""
-    obstacles = np.asarray(obstacles, float)
+    that reaches into the box (:meth:`flocking.space.Space.obstacle_images`)."""
     box = np.asarray(box_lengths, float)
-    dim = len(box)
-    if obstacles.size == 0:
-        return np.zeros((0, dim + 1))
-    shifts = [(-1, 0, 1) if not wall else (0,) for wall in walls]
-    rows = []
-    for shift in itertools.product(*shifts):
-        moved = obstacles.copy()
-        moved[:, :dim] += np.asarray(shift) * box
-        inside = np.all(np.abs(moved[:, :dim]) - moved[:, dim:] < box / 2, axis=1)
-        rows.append(moved[inside])
-    images = np.concatenate(rows)
-    return images[np.lexsort(images.T[::-1])]
+    return Space(tuple(box), tuple(walls), obstacles, tuple(-box / 2)).obstacle_images()
 
 
 def free_mask(obstacles: np.ndarray, box_lengths, shape) -> np.ndarray:
     """``shape = (rows, columns)`` booleans of a 2D grid (rows downward): whether each
-    bin's centre lies outside every obstacle (``obstacles`` already with their images)."""
+    bin's centre lies outside every obstacle (``obstacles`` already with their images, so
+    no further image is taken: :meth:`flocking.space.Space.in_obstacle` with walls)."""
     ny, nx = shape
     lx, ly = float(box_lengths[0]), float(box_lengths[1])
     x = ((np.arange(nx) + 0.5) / nx - 0.5) * lx
     y = (0.5 - (np.arange(ny) + 0.5) / ny) * ly
-    free = np.ones((ny, nx), bool)
-    for cx, cy, r in np.asarray(obstacles, float).reshape(-1, 3):
-        free &= (x[None, :] - cx) ** 2 + (y[:, None] - cy) ** 2 > r * r
-    return free
+    centres = np.stack(np.broadcast_arrays(x[None, :], y[:, None]), axis=-1)
+    space = Space((lx, ly), (True, True), np.asarray(obstacles, float).reshape(-1, 3), (-lx / 2, -ly / 2))
+    return ~space.in_obstacle(centres)
