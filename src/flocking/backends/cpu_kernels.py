@@ -340,13 +340,6 @@ def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, cone):
                        coh[1], coh[2], coh[3], coh[4])
 
 
-@numba.njit(cache=True, inline="always")
-def plus_counted(s, t):
-    """``s + t`` in :func:`metric_sums`' layout, ``t`` as :func:`pair_terms` gives it."""
-    return (s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3], s[4] + t[4], s[5] + t[5], s[6] + t[6], s[7] + t[7],
-            s[8] + t[8], s[9] + t[9], s[10] + t[10])
-
-
 def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
     """Slot ``i``'s sums over the cells around its own cell ``c``, each cell once, every
     pair by minimum image, none across a wall: ``(S (3), count, pull (3), push (3), core
@@ -357,7 +350,7 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
     o2, n2 = 0, 1
     if d == 3:
         o2, n2 = cells.axis_cells(c // (nc[0] * nc[1]), nc[2])
-    s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    s = R.SUM0
     for k2 in range(n2):
         g2 = o2 + k2
         if d == 3:
@@ -387,9 +380,9 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
                         d2 += dz * dz
                     t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, CONE)
                     if t[3] != 0.0:  # only what counts is added, as the reference adds it
-                        s = plus_counted(s, t)
+                        s = R.plus(s, t)
     if WEIGHTED:  # the count includes the particle itself
-        s = (s[0], s[1], s[2], s[3] + 1.0, s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+        s = s[:3] + (s[3] + 1.0,) + s[4:]
     return s
 
 
@@ -403,9 +396,9 @@ def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs):
     c0, c1, c2 = c % nc[0], (c // nc[0]) % nc[1], c // (nc[0] * nc[1]) if d == 3 else 0
     found = R.knearest(i, c0, c1, c2, 0, pos, head, ids, start, nc[0], nc[1], nc2, box[0], box[1], l2, tb.half[0],
                        tb.half[1], h2, d, k, CONE, tb.cone[0], bd, bi, bs)
-    s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    s = R.SUM0
     if not WEIGHTED:
-        s = (head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        s = (head[0, i], head[1, i], head[2, i] if d == 3 else 0.0) + R.SUM0[3:]
     for q in range(found):
         j = bs[q]
         dx = dy = dz = 0.0
@@ -414,44 +407,19 @@ def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs):
             dy = R.minimum_image(pos[1, j] - pos[1, i], box[1], tb.half[1])
             if d == 3:
                 dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
-        s = plus_counted(s, pair_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si, False))
-    return (s[0], s[1], s[2], float(found + 1), s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+        s = R.plus(s, pair_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si, False))
+    return s[:3] + (float(found + 1),) + s[4:]
 
 
 # -- one particle's step ------------------------------------------------------------------
 
 
-def remember(ring, slot, pid, s):
-    """The delay ring's row of particle ``pid`` holds the sums of ``delay`` steps ago (the
-    others' heading sum, ``1 +`` their count, and with cohesion the pull, the push and the
-    core count): return them in :func:`metric_sums`' layout and store today's ``s``."""
-    d = DIM
-    old = (ring[slot, pid, 0], ring[slot, pid, 1], ring[slot, pid, 2] if d == 3 else 0.0, ring[slot, pid, d])
-    ring[slot, pid, 0] = s[0]
-    ring[slot, pid, 1] = s[1]
-    if d == 3:
-        ring[slot, pid, 2] = s[2]
-    ring[slot, pid, d] = s[3]
-    if not COH:
-        return (old[0], old[1], old[2], old[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
-    o = d + 1
-    extra = (ring[slot, pid, o], ring[slot, pid, o + 1], ring[slot, pid, o + 2] if d == 3 else 0.0,
-             ring[slot, pid, o + d], ring[slot, pid, o + d + 1], ring[slot, pid, o + d + 2] if d == 3 else 0.0,
-             ring[slot, pid, o + 2 * d])
-    for a in range(d):
-        ring[slot, pid, o + a] = s[4 + a]
-        ring[slot, pid, o + d + a] = s[7 + a]
-    ring[slot, pid, o + 2 * d] = s[10]
-    return (old[0], old[1], old[2], old[3], extra[0], extra[1], extra[2], extra[3], extra[4], extra[5], extra[6])
-
-
 def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed, p, nc, inv, box, tb):
     """Slot ``i``'s new heading and position into ``new_*[:, i]`` and its new cell into
-    ``cell[i]``, from its sums ``s`` (:func:`metric_sums`' layout: with ``WEIGHTED``, the
-    others' weighed headings, else the sum with itself; ``p``: the step's parameters);
-    returns the new heading (``wz``
-    is 0 in 2D). In the order of docs/model.md: the delay, cohesion, the update (field,
-    noise, alignment, chirality), the move, the walls, the obstacles."""
+    ``cell[i]``, from its sums ``s`` (:data:`flocking.rules.step.SUMS`: with ``WEIGHTED``,
+    the others' weighed headings, else the sum with itself; ``p``: the step's parameters);
+    returns the new heading (``wz`` is 0 in 2D). The delay's ring first, then the step's
+    end as both backends take it (:func:`flocking.rules.step.finish`)."""
     d = DIM
     n = pos.shape[1]
     pid = ids[i]
@@ -462,63 +430,31 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
         # particles ahead so that its cache miss overlaps work
         intrinsics.prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
         if not WEIGHTED:  # the ring holds the others' sum
-            s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
-        s = remember(ring, slot, pid, s)
-        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+            s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0) + s[3:]
+        past = R.recall(ring, slot, pid, d, COH)
+        R.keep(ring, slot, pid, s, d, COH)
+        s = (ux + past[0], uy + past[1], uz + past[2] if d == 3 else 0.0) + past[3:]
     elif WEIGHTED:
-        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0, s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
-    sx, sy, sz, total = s[0], s[1], s[2], s[3]
-    core = False
-    if COH:
-        sx, sy, sz, core = R.cohesive_sum(sx, sy, sz, s[4], s[5], s[6], s[7], s[8], s[9], s[10], tb.cohesion[0])
-    vectorial = p.vectorial
+        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0) + s[3:]
     if EXT:
         si = species(pid, tb.bounds)
         eta, epsilon, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 4]
         cturn, sturn = tb.species[si, 2], tb.species[si, 3]
-        if core:  # an infinite repulsion drowns the field and vectorial noise
-            h = 0.0
-            if vectorial:
-                eta = 0.0
     else:
         eta, epsilon, h, cturn, sturn = p.eta, p.epsilon, 0.0, 1.0, 0.0
     ds = (spd[i] if spd.shape[0] == n else spd[0]) * p.dt
-    if d == 2:
-        wx, wy = R.update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step, pid, h, tb.field[0],
-                             tb.field[1], cturn, sturn)
-        wz = 0.0
-    else:
-        wx, wy, wz = R.update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step, pid, h,
-                                 tb.field[0], tb.field[1], tb.field[2])
-    if p.backward:
-        mx, my, mz = wx, wy, wz
-    else:
-        mx, my, mz = ux, uy, uz
-    if not EXT:
-        new_pos[0, i] = R.wrap(pos[0, i] + ds * mx, box[0])
-        new_pos[1, i] = R.wrap(pos[1, i] + ds * my, box[1])
-        if d == 3:
-            new_pos[2, i] = R.wrap(pos[2, i] + ds * mz, box[2])
-    else:
-        x, wx = R.fold(pos[0, i] + ds * mx, wx, box[0], tb.walls[0] != 0)
-        y, wy = R.fold(pos[1, i] + ds * my, wy, box[1], tb.walls[1] != 0)
-        z = 0.0
-        if d == 3:
-            z, wz = R.fold(pos[2, i] + ds * mz, wz, box[2], tb.walls[2] != 0)
-        for o in range(tb.obstacles.shape[0]):
-            ob = tb.obstacles[o]
-            if d == 2:
-                x, y, wx, wy = R.push_out_2d(x, y, wx, wy, ob[0], ob[1], ob[2], box[0], box[1], tb.half[0],
-                                             tb.half[1], tb.walls[0] != 0, tb.walls[1] != 0)
-            else:
-                x, y, z, wx, wy, wz = R.push_out_3d(x, y, z, wx, wy, wz, ob[0], ob[1], ob[2], ob[3], box[0], box[1],
-                                                    box[2], tb.half[0], tb.half[1], tb.half[2], tb.walls[0] != 0,
-                                                    tb.walls[1] != 0, tb.walls[2] != 0)
-        new_pos[0, i], new_pos[1, i] = x, y
-        if d == 3:
-            new_pos[2, i] = z
+    z, l2, h2, w2 = 0.0, 1.0, np.inf, False  # the third axis, read apart: a conditional among the
+    # call's arguments is control flow that numba cannot inline
+    if d == 3:
+        z, l2, h2, w2 = pos[2, i], box[2], tb.half[2], tb.walls[2] != 0
+    x, y, z, wx, wy, wz = R.finish(d, EXT, COH, ux, uy, uz, s, tb.cohesion[0], (eta, epsilon, h, cturn, sturn),
+                                   p.vectorial, p.backward, seed, step, pid, (tb.field[0], tb.field[1], tb.field[2]),
+                                   ds, pos[0, i], pos[1, i], z, (box[0], box[1], l2), (tb.half[0], tb.half[1], h2),
+                                   (tb.walls[0] != 0, tb.walls[1] != 0, w2), tb.obstacles, tb.obstacles.shape[0])
+    new_pos[0, i], new_pos[1, i] = x, y
     new_head[0, i], new_head[1, i] = wx, wy
     if d == 3:
+        new_pos[2, i] = z
         new_head[2, i] = wz
     cell[i] = cells.cell_of(new_pos, i, nc, inv)
     return wx, wy, wz
@@ -632,18 +568,16 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
         for i in range(np.uint64(max(s0, 0)), np.uint64(max(s1, 0))):
             q = np.int64(i) - s0
             sz = out[2, q] if d == 3 else 0.0
-            s = (out[0, q], out[1, q], sz, out[d, q], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            s = (out[0, q], out[1, q], sz, out[d, q]) + R.SUM0[4:]
             if COH:
                 o = d + 1
-                s = (s[0], s[1], s[2], s[3], out[o, q], out[o + 1, q], out[o + 2, q] if d == 3 else 0.0,
-                     out[o + d, q], out[o + d + 1, q], out[o + d + 2, q] if d == 3 else 0.0,
-                     out[o + 2 * d, q])
+                s = s[:4] + (out[o, q], out[o + 1, q], out[o + 2, q] if d == 3 else 0.0, out[o + d, q],
+                             out[o + d + 1, q], out[o + d + 2, q] if d == 3 else 0.0, out[o + 2 * d, q])
             if WEIGHTED:
                 # the sums include the particle itself, with its own species'
                 # coupling, in its cone, of its own sense: take it out
                 w = tb.coupling[int(tag[i]), int(tag[i])] if CPL else 1.0
-                s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0, s[3], s[4], s[5],
-                     s[6], s[7], s[8], s[9], s[10])
+                s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0) + s[3:]
             wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
                                  params, nc, inv, box, tb)
             if EXT:
@@ -721,7 +655,7 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
 
 #: the functions compiled once per variant, callees first: each reads the flags as globals
 VARIANT = ("pair_2d", "pair_3d", "cohere", "wreduce_2d", "wreduce_3d", "pair_terms", "metric_sums",
-           "nearest_sums", "remember", "advance", "add_moments", "line_units", "search_blocks")
+           "nearest_sums", "advance", "add_moments", "line_units", "search_blocks")
 
 
 def variant(features: Features, kernel: str) -> Features:

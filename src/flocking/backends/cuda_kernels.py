@@ -142,10 +142,6 @@ def row_of(c, oc, nc, length):
         return g - nc, -length
     return g, ZERO
 
-def plus(s, t):
-    return (s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3], s[4] + t[4], s[5] + t[5], s[6] + t[6],
-            s[7] + t[7], s[8] + t[8], s[9] + t[9], s[10] + t[10])
-
 def terms(i, j, dx, dy, dz, d2, inside, cur, tb, si, with_cone):
     """Neighbour candidate ``j`` of slot ``i`` by :func:`flocking.rules.physics.neighbour`."""
     head, coh = cur.head, tb.cohesion
@@ -168,7 +164,7 @@ def metric(i, cb, cur, start, p, tb, si):
     cx, cy = R.cell_index(xi, p.inv0, nc0), R.cell_index(yi, p.inv1, nc1)
     cz = R.cell_index(zi, p.inv2, nc2) if DIM == 3 else 0
     a0, a1, sha, b0, b1, shb = x_ranges(cx, nc0, p.s0)
-    s = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
+    s = R.SUM0
     nz = R.lesser(nc2, 3) if DIM == 3 else 1
     for oz in range(nz):
         gz, shz = row_of(cz, oz, nc2, p.s2) if DIM == 3 else (0, ZERO)
@@ -201,7 +197,7 @@ def metric(i, cb, cur, start, p, tb, si):
                         d2 += dz * dz
                     t = terms(i, j, dx, dy, dz, d2, d2 < r2, cur, tb, si, CONE)
                     if t[3] != ZERO:
-                        s = plus(s, t)
+                        s = R.plus(s, t)
     return s
 
 def nearest(i, cb, cur, start, p, tb, si, bd, bi, bs):
@@ -213,14 +209,14 @@ def nearest(i, cb, cur, start, p, tb, si, bd, bi, bs):
     c2 = R.cell_index(zi, p.inv2, p.nc2) if DIM == 3 else 0
     found = R.knearest(i, c0, c1, c2, cb, pos, cur.head, cur.ids, start, p.nc0, p.nc1, p.nc2, p.l0, p.l1, p.l2,
                        p.h0, p.h1, p.h2, DIM, K, CONE, tb.cone[0], bd, bi, bs)
-    s = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
+    s = R.SUM0
     for q in range(K):
         if q < found:
             j = bs[q]
             dx = R.minimum_image(pos[0, j] - xi, p.l0, p.h0)
             dy = R.minimum_image(pos[1, j] - yi, p.l1, p.h1)
             dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2) if DIM == 3 else ZERO
-            s = plus(s, terms(i, j, dx, dy, dz, bd[q], True, cur, tb, si, False))
+            s = R.plus(s, terms(i, j, dx, dy, dz, bd[q], True, cur, tb, si, False))
     return s
 
 # -- one step --------------------------------------------------------------------
@@ -254,12 +250,12 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
         t = clock[0]
         tau = rp[r].tau
         slot = t % tau if tau > 0 else 0
-        past = (ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO)
+        past = R.SUM0
         if tau > 0 and not prime:
             # read before the neighbour search, whose work hides the latency of these
             # reads (scattered by id over the ring's slab): read after it, they made a
             # delayed step 2.8 times slower (docs/gpu.md)
-            past = recall(ring, slot, gid)
+            past = R.recall(ring, slot, gid, DIM, COH)
     si = R.species_of(pid, tb.bounds, NSPECIES) if EXT else 0
     if K == 0:
         s = metric(i, cb, cur, start, p, tb, si)
@@ -270,7 +266,7 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
         bi = cuda.local.array(KA, np.int32)
         bs = cuda.local.array(KA, np.int32)
         s = nearest(i, cb, cur, start, p, tb, si, bd, bi, bs)
-    s = (s[0], s[1], s[2], ONE + s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
+    s = s[:3] + (ONE + s[3],) + s[4:]
     if not DELAY:
         # here, not before the search: held across it, they took 3 more registers
         gid = r * n + pid
@@ -278,57 +274,23 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     else:
         if prime:
             for q in range(tau):
-                keep(ring, q, gid, s)
+                R.keep(ring, q, gid, s, DIM, COH)
             return
         if tau > 0:
-            keep(ring, slot, gid, s)
+            R.keep(ring, slot, gid, s, DIM, COH)
             s = past  # without cohesion its last seven are zeros that move() never reads
     move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t)
 
-def recall(ring, slot, gid):
-    """The sums the ring holds for ``gid`` in ``slot`` (zero where it holds none)."""
-    x, y = ring[slot, gid, 0], ring[slot, gid, 1]
-    z = ring[slot, gid, 2] if DIM == 3 else ZERO
-    total = ring[slot, gid, DIM]
-    if not COH:
-        return x, y, z, total, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO
-    o = DIM + 1
-    return (x, y, z, total, ring[slot, gid, o], ring[slot, gid, o + 1],
-            ring[slot, gid, o + 2] if DIM == 3 else ZERO, ring[slot, gid, o + DIM],
-            ring[slot, gid, o + DIM + 1], ring[slot, gid, o + DIM + 2] if DIM == 3 else ZERO,
-            ring[slot, gid, o + 2 * DIM])
-
-def keep(ring, slot, gid, s):
-    """Write the sums ``s`` into the ring for ``gid`` in ``slot``."""
-    ring[slot, gid, 0], ring[slot, gid, 1], ring[slot, gid, DIM] = s[0], s[1], s[3]
-    if DIM == 3:
-        ring[slot, gid, 2] = s[2]
-    if COH:
-        o = DIM + 1
-        ring[slot, gid, o], ring[slot, gid, o + 1] = s[4], s[5]
-        ring[slot, gid, o + DIM], ring[slot, gid, o + DIM + 1] = s[7], s[8]
-        if DIM == 3:
-            ring[slot, gid, o + 2], ring[slot, gid, o + DIM + 2] = s[6], s[9]
-        ring[slot, gid, o + 2 * DIM] = s[10]
-
 def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
     """From the others' sums ``s`` to slot ``i``'s new heading, position and sort
-    record: cohesion, the update, the move, the walls, the obstacles."""
+    record: the step's end as both backends take it (:func:`flocking.rules.step.finish`)."""
     pos, head = cur.pos, cur.head
     ux, uy = head[0, i], head[1, i]
     uz = head[2, i] if DIM == 3 else ZERO
-    sx, sy, sz, total = ux + s[0], uy + s[1], uz + s[2], s[3]
-    core = False
-    if COH:
-        sx, sy, sz, core = R.cohesive_sum(sx, sy, sz, s[4], s[5], s[6], s[7], s[8], s[9], s[10], tb.cohesion[0])
-    vectorial = p.vectorial != 0
+    s = (ux + s[0], uy + s[1], uz + s[2]) + s[3:]
     if EXT:
         eta, epsilon = tb.species[r, si, 0], tb.species[r, si, 1]
         cturn, sturn, h = tb.species[r, si, 2], tb.species[r, si, 3], tb.species[r, si, 4]
-        if core:  # an infinite repulsion drowns the field and vectorial noise
-            h = ZERO
-            if vectorial:
-                eta = ZERO
     else:
         eta, epsilon, h, cturn, sturn = rp[r].eta, rp[r].epsilon, ZERO, ONE, ZERO
     if p.speeds != 0:
@@ -336,35 +298,12 @@ def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
         new.spd[i] = cur.spd[i]
     else:
         ds = rp[r].v0 * p.dt
-    seed, step_, upid = rp[r].seed, np.uint64(t), np.uint64(pid)
-    if DIM == 2:
-        wx, wy = R.update_2d(ux, uy, sx, sy, total, epsilon, eta, vectorial, seed, step_, upid, h, tb.field[0],
-                             tb.field[1], cturn, sturn)
-        wz = ZERO
-    else:
-        wx, wy, wz = R.update_3d(ux, uy, uz, sx, sy, sz, total, epsilon, eta, vectorial, seed, step_, upid, h,
-                                 tb.field[0], tb.field[1], tb.field[2])
-    mx, my, mz = (wx, wy, wz) if p.backward != 0 else (ux, uy, uz)
-    x, y = pos[0, i] + ds * mx, pos[1, i] + ds * my
-    z = pos[2, i] + ds * mz if DIM == 3 else ZERO
-    if EXT:
-        x, wx = R.fold(x, wx, p.l0, p.w0 != 0)
-        y, wy = R.fold(y, wy, p.l1, p.w1 != 0)
-        if DIM == 3:
-            z, wz = R.fold(z, wz, p.l2, p.w2 != 0)
-        for o in range(p.obstacles):
-            ob = tb.obstacles
-            if DIM == 2:
-                x, y, wx, wy = R.push_out_2d(x, y, wx, wy, ob[o, 0], ob[o, 1], ob[o, 2], p.l0, p.l1, p.h0, p.h1,
-                                             p.w0 != 0, p.w1 != 0)
-            else:
-                x, y, z, wx, wy, wz = R.push_out_3d(x, y, z, wx, wy, wz, ob[o, 0], ob[o, 1], ob[o, 2], ob[o, 3],
-                                                    p.l0, p.l1, p.l2, p.h0, p.h1, p.h2, p.w0 != 0, p.w1 != 0,
-                                                    p.w2 != 0)
-    else:
-        x, y = R.wrap(x, p.l0), R.wrap(y, p.l1)
-        if DIM == 3:
-            z = R.wrap(z, p.l2)
+    z = pos[2, i] if DIM == 3 else ZERO
+    x, y, z, wx, wy, wz = R.finish(DIM, EXT, COH, ux, uy, uz, s, tb.cohesion[0], (eta, epsilon, h, cturn, sturn),
+                                   p.vectorial != 0, p.backward != 0, rp[r].seed, np.uint64(t), np.uint64(pid),
+                                   (tb.field[0], tb.field[1], tb.field[2]), ds, pos[0, i], pos[1, i], z,
+                                   (p.l0, p.l1, p.l2), (p.h0, p.h1, p.h2), (p.w0 != 0, p.w1 != 0, p.w2 != 0),
+                                   tb.obstacles, p.obstacles)
     new.head[0, i], new.head[1, i] = wx, wy
     new.pos[0, i], new.pos[1, i] = x, y
     c = R.cell_index(y, p.inv1, p.nc1) * p.nc0 + R.cell_index(x, p.inv0, p.nc0)
@@ -477,7 +416,7 @@ def finish(partial, P, phi, clock, hist, tiles, tick):
 
 
 #: the device functions of a build, callees first
-DEVICE = ('slot_of', 'x_ranges', 'row_of', 'plus', 'terms', 'metric', 'nearest', 'recall', 'keep', 'move', 'block_sum')
+DEVICE = ('slot_of', 'x_ranges', 'row_of', 'terms', 'metric', 'nearest', 'move', 'block_sum')
 #: the kernels of a build
 KERNELS = ('step', 'cells', 'gather', 'finish')
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import rng
 from ..model import Model
-from ..observables import moment_sums, moment_width
+from ..observables import moment_width
 from ..state import State, frame_arrays, random_unit_vectors
 
 
@@ -280,7 +280,7 @@ class ReferenceBackend:
         for t in range(steps):
             self._step()
             phi[t] = self._state.polar_order()
-            self.moments[t] = moment_sums(self.model, self._state.headings)
+            self.moments[t] = moments(self.model, self._state.headings)
         return phi
 
     def _step(self) -> None:
@@ -318,3 +318,19 @@ class ReferenceBackend:
         if model.delay:
             self._history.append(now.copy())
         self._state = State(positions, new, now.speeds, now.step + 1)
+
+
+def moments(model: Model, headings: np.ndarray) -> np.ndarray:
+    """The moment sums of docs/model.md's observables, transcribed on their own: each
+    species' summed heading, then for nematic alignment the summed tensor ``u u^T`` (2D: as
+    the angles' ``cos 2 theta`` and ``sin 2 theta``; 3D: xx, yy, zz, xy, xz, yz)."""
+    bounds = np.cumsum([0, *model.species_counts])[:-1]
+    parts = [np.add.reduceat(headings, bounds, axis=0).ravel()]
+    if model.alignment_rule == "nematic":
+        if model.dim == 2:
+            theta = np.arctan2(headings[:, 1], headings[:, 0])
+            parts.append([np.cos(2.0 * theta).sum(), np.sin(2.0 * theta).sum()])
+        else:
+            q = np.einsum("ia,ib->ab", headings, headings)
+            parts.append([q[0, 0], q[1, 1], q[2, 2], q[0, 1], q[0, 2], q[1, 2]])
+    return np.concatenate(parts)

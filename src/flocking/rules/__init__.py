@@ -36,16 +36,17 @@ import numba
 import numpy as np
 
 from .. import rng
-from . import geometry, neighbours, physics
+from . import geometry, neighbours, physics, step
 
 #: the modules of rules, callees first; each lists its rules in ``RULES``, callees first
-MODULES = (rng, geometry, physics, neighbours)
+MODULES = (rng, geometry, physics, neighbours, step)
 
 
 def constants(real) -> dict:
     """The names the rules use for constants, as values of the float type ``real``."""
     return dict(REAL=real, ZERO=real(0.0), ONE=real(1.0), HALF=real(0.5), TWO=real(2.0), FOUR=real(4.0),
-                TWO_PI=real(2.0 * math.pi), INF=real(np.inf), TINY=real(1e-12), NEAR_X=real(0.9))
+                TWO_PI=real(2.0 * math.pi), INF=real(np.inf), TINY=real(1e-12), NEAR_X=real(0.9),
+                SUM0=tuple(real(0.0) for _ in step.SUMS))
 
 
 def rebind(function, namespace: dict, qualname: str | None = None):
