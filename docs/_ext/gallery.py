@@ -34,8 +34,10 @@ def slug(heading: str) -> str:
 def where_shown(path: str):
     """(page, heading) of the first page section that shows the figure, or None."""
     name = os.path.basename(path)
-    for source, page in PAGES:
-        if page == "gallery" or not os.path.exists(source):
+    # an example's numbers are on the examples page; the rest on the page that shows it
+    pages = sorted(PAGES, key=lambda entry: entry[1] != "examples") if path.startswith("examples/") else PAGES
+    for source, page in pages:
+        if page in ("gallery", "index") or not os.path.exists(source):
             continue
         heading = None
         with open(source, encoding="utf-8") as f:
@@ -73,11 +75,11 @@ class Gallery(Directive):
             shown = where_shown(path)
             if shown:
                 page, heading = shown
-                anchor = f"#{slug(heading)}" if heading and page != "index" else ""
+                anchor = f"#{slug(heading)}" if heading else ""
                 lines += [f"Its numbers and what they mean: [{heading or page}]({page}.md{anchor}).", ""]
             work = "work"
-            lines += ["Made by (`{work}` a scratch folder; "
-                      f"`python tools/figures.py make {path}` runs these and records the figure):", "",
+            lines += [f"Made by these commands, run from a clone (`{work}` is a scratch folder; "
+                      f"`python tools/figures.py make {path}` runs them and records the figure):", "",
                       "```bash", *[cmd.replace("{work}", work) for cmd in fig["make"]], "```", "",
                       f"Time: {fig['time']}.", ""]
         holder = nodes.Element()
