@@ -140,3 +140,17 @@ def test_a_block_that_fails_fails_the_test(tmp_path, monkeypatch):
     with pytest.raises(AssertionError):
         exec(compile(found, "example", "exec"), {})
     assert np.isfinite(1.0)
+
+
+def test_the_pages_are_pages_not_logs():
+    """No page of docs/ over 500 lines; the two reference pages on speed at most 250; each
+    measurement table of those two is headed by its commit, machine and date."""
+    lengths = {page: len(open(os.path.join(ROOT, page), encoding="utf-8").read().splitlines()) for page in PAGES
+               if page.startswith("docs/")}
+    assert max(lengths.values()) <= 500, lengths
+    assert lengths["docs/performance.md"] <= 250 and lengths["docs/gpu.md"] <= 250
+    for page in ("docs/performance.md", "docs/gpu.md"):
+        text = open(os.path.join(ROOT, page), encoding="utf-8").read()
+        assert "measured and left" not in text
+        headed = re.findall(r"^Commit [0-9a-f]{7}, .+, 20\d\d-\d\d-\d\d", text, flags=re.M)
+        assert headed, page
