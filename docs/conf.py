@@ -27,6 +27,7 @@ extensions = [
     "sphinx.ext.autosummary",
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",  # MathJax served from the site itself: the pages read offline
     "sphinx_click",
     "gallery",
     "repolinks",
@@ -48,8 +49,8 @@ autosummary_generate = False
 napoleon_numpy_docstring = True
 napoleon_google_docstring = False
 
-# MathJax from the theme's own copy is not shipped with Sphinx; pages that use $...$ load it
-# when read, not when built (the build downloads nothing)
+# MathJax ships with the site (sphinx-mathjax-offline): neither building nor reading the pages
+# downloads anything
 html_theme = "furo"
 html_title = f"flocking {release}"
 html_static_path = []
