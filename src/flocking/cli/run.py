@@ -177,8 +177,8 @@ with their own parameters and the coupling matrix J (row: who aligns, column: wi
   coupling = [[1.0, 1.0, -1.0], [1.0, 1.0, 0.0], [1.0, 1.0, 1.0]]
   field = [1.0, 0.0]
 \b
-Positions (--obstacle, centre) are box coordinates, each axis from 0 to L. docs/model.md and
-docs/extensions.md give every parameter's meaning and range."""
+Positions (--obstacle, centre) are box coordinates, each axis from 0 to L. docs/model.md
+gives every parameter's meaning and range."""
 
 
 @click.command(short_help="Simulate a flock into a run folder.", epilog=CONFIG_EXAMPLE)
