@@ -1,8 +1,8 @@
-"""Two explanatory figures for docs/model.md: the vision cone and chirality.
+"""Two explanatory figures for docs/extensions.md: the vision cone and chirality.
 
 ``vision``: a focal particle heading along +x, its interaction circle (R = 1) and its cone of
 half-angle theta_v = 2.1 rad, among neighbours placed at random (a fixed seed). Each
-neighbour is coloured by the rule of docs/model.md: seen (closer than R and within theta_v
+neighbour is coloured by the rule of docs/extensions.md: seen (closer than R and within theta_v
 of the heading), hidden by the cone (closer than R, behind) or out of range. Before
 drawing, the script takes one step of the engine (the ``cpu`` and ``reference`` backends,
 no noise) from that very state and checks that the focal particle's new heading is the mean
@@ -12,7 +12,7 @@ over every neighbour in range; it stops with an error if the engine disagrees.
 ``chirality``: isolated particles (one a run, so no neighbours) with v0 = 0.5, dt = 1 and
 the turning rates omega = 0.1, 0.2 and -0.15 (clockwise), run by the engine and recorded
 every step for one turn, over the circle of radius v0 dt / (2 sin(omega dt / 2)) that
-docs/model.md predicts (checked to 1e-9 before drawing); and, beside them, one chiral
+docs/extensions.md predicts (checked to 1e-9 before drawing); and, beside them, one chiral
 particle with angular noise eta = 0.3 wandering away from its circle.
 
     python docs/model_figures.py vision --out docs/model-vision.png --theme light --size column
@@ -266,9 +266,10 @@ def draw_chirality(args) -> None:
         ax.set_aspect("equal", adjustable="box")  # equal heights (shared y), so equal scales
         ax.tick_params(labelsize=0.8 * size, labelleft=True)
     house.label_axes(left, r"$x - x_0$ (units of $R$)", r"$y - y_0$ (units of $R$)")
-    house.label_axes(right, r"$x - x_0$")
+    house.label_axes(right, "$x - x_0$\n(units of $R$)")
     house.title(fig, "Chirality: particles that turn by themselves",
-                f"$v_0$ = {SPEED:g} $R$ per step · $\\Delta{{t}}$ = {DT:g} · from the start $(x_0, y_0)$ heading "
+                f"$v_0$ = {SPEED:g} $R$ per unit time · $\\Delta{{t}}$ = {DT:g} · $\\omega$ in rad per unit time · "
+                "from the start $(x_0, y_0)$ heading "
                 "$+y$ (arrow) · both panels on one scale · dots: the engine, a step each · "
                 "band: radius $v_0\\Delta{t}/(2\\sin(\\omega\\Delta{t}/2))$ · dashed: the same without noise")
     house.save(fig, args.out)

@@ -185,3 +185,98 @@ def test_an_unknown_option_gets_the_closest_one():
                              "(flocking run --help lists them)\n")
     result = CliRunner().invoke(main, ["animate", "r", "--output", "x.mp4"])
     assert "did you mean --out?" in result.output and result.exit_code == 2
+
+
+# --- the documentation's vocabulary: every option and config key a page names exists ----
+
+import glob  # noqa: E402
+import os  # noqa: E402
+import tomllib  # noqa: E402
+
+ROOT = os.path.join(os.path.dirname(__file__), os.pardir)
+PAGES = sorted(os.path.relpath(p, ROOT) for p in [*glob.glob(os.path.join(ROOT, "docs", "*.md")),
+                                                  os.path.join(ROOT, "examples", "README.md"),
+                                                  os.path.join(ROOT, "README.md"),
+                                                  os.path.join(ROOT, "ARCHITECTURE.md")])
+#: options of other programs that the pages quote, with the program each belongs to
+OTHER_PROGRAMS = {"--nworkers": "dask worker", "--nthreads": "dask worker", "--without-pip": "venv",
+                  "--system-site-packages": "venv"}
+
+
+def page_text(page: str) -> str:
+    return open(os.path.join(ROOT, page), encoding="utf-8").read()
+
+
+def code_spans(text: str) -> list[str]:
+    """The code a page shows: each line of its fenced blocks, each inline code span; not a
+    line shown with the error it makes (a line ``Error: ...`` after it), nor that error."""
+    fenced = re.findall(r"```[\w-]*\n(.*?)```", text, flags=re.S)
+    lines = [line for block in fenced for line, after in zip(block.splitlines(), block.splitlines()[1:] + [""])
+             if not after.startswith("Error: ") and not line.startswith("Error: ")]
+    inline = re.findall(r"(?<!`)`([^`\n]+)`(?!`)", re.sub(r"```.*?```", "", text, flags=re.S))
+    return lines + inline
+
+
+def script_options() -> set[str]:
+    """The options of the repository's own scripts (benchmarks, examples, tools)."""
+    found = set()
+    for path in [*glob.glob(os.path.join(ROOT, "benchmarks", "*.py")), *glob.glob(os.path.join(ROOT, "examples", "*.py")),
+                 *glob.glob(os.path.join(ROOT, "tools", "*.py")), os.path.join(ROOT, "docs", "model_figures.py")]:
+        found |= set(re.findall(r"add_argument\(\s*['\"](--[\w-]+)", open(path, encoding="utf-8").read()))
+    return found
+
+
+def unknown_options(text: str, known: set[str]) -> list[str]:
+    bad = []
+    for span in code_spans(text):
+        for option in re.findall(r"(?<![\w-])(--[a-z][\w-]*)", span):
+            program = OTHER_PROGRAMS.get(option)
+            if option not in known and not (program and program in span):
+                bad.append(option)
+    return bad
+
+
+def test_every_option_a_page_names_exists():
+    """An option quoted anywhere in the documentation, in a command or alone in prose, is an
+    option of a flocking command, of one of the repository's scripts, or of the other program
+    quoted with it (a renamed or removed option fails here)."""
+    known = {o for c in COMMANDS.values() for p in c.params for o in p.opts + p.secondary_opts}
+    known |= {"--help", "--version"} | script_options()
+    assert {"--out", "--species-b", "--cross-coupling", "--full", "--rounds"} <= known
+    for page in PAGES:
+        assert unknown_options(page_text(page), known) == [], page
+    # and the check bites: a retired name, a misspelling, another program's option out of place
+    assert unknown_options("`flocking run --output x` or `--obstacles 1,1,1`", known) == ["--output", "--obstacles"]
+    assert unknown_options("run it with `--nthreads 1`", known) == ["--nthreads"]
+    assert unknown_options("```\nflocking run --obstacles 16,16,4\nError: no such option\n```", known) == []
+
+
+def test_every_config_key_a_page_names_exists():
+    """The parameter tables of model.md and extensions.md name keys of config.toml; every TOML
+    block of the pages is a valid run config or sweep file; an inline ``key = "value"`` or
+    ``key = true`` is a key of one of them."""
+    from flocking.config import RUN_KEYS, RunConfig
+    from flocking.sweep.spec import RANGE_KEYS, SWEEP_DEFAULTS, SweepSpec
+
+    rows = {page: re.findall(r"^\| `([a-z_]+)` \|", page_text(page), flags=re.M)
+            for page in ("docs/model.md", "docs/extensions.md")}
+    assert len(rows["docs/model.md"]) >= 15 and len(rows["docs/extensions.md"]) >= 10
+    for page, keys in rows.items():
+        assert set(keys) <= set(RUN_KEYS), (page, set(keys) - set(RUN_KEYS))
+    blocks = [(page, block) for page in PAGES for block in re.findall(r"```toml\n(.*?)```", page_text(page), flags=re.S)]
+    assert len(blocks) >= 3
+    for page, block in blocks:
+        text = "\n".join(line[2:] if line.startswith("  ") else line for line in block.splitlines())
+        data = tomllib.loads(text)
+        if {"sweep", "base", "grid"} & data.keys():
+            SweepSpec.from_toml(text)
+        else:
+            RunConfig.from_dict(data)
+    allowed = set(RUN_KEYS) | set(SWEEP_DEFAULTS) | set(RANGE_KEYS)
+    for page in PAGES:
+        for span in code_spans(page_text(page)):
+            m = re.fullmatch(r'\s*([a-z_]+) = ("[^"]*"|true|false)\s*(#.*)?', span)
+            if m:
+                assert m[1] in allowed, (page, span)
+    with pytest.raises(ParameterError, match="unknown parameter"):
+        RunConfig.from_dict({"noise_kind": "angular"})

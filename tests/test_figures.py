@@ -24,12 +24,14 @@ def test_committed_figure_is_current(fig):
 
 def test_every_figure_of_the_docs_is_in_the_manifest():
     listed = {fig["path"] for fig in figures.load()}
+    build = os.path.join(ROOT, "docs", "_build")  # the built site's copies (gitignored), not figures
     on_disk = {os.path.relpath(os.path.join(d, f), ROOT).replace(os.sep, "/")
                for top in ("docs", "examples") for d, _, names in os.walk(os.path.join(ROOT, top))
+               if not os.path.realpath(d).startswith(os.path.realpath(build))
                for f in names if f.endswith(IMAGES)}
     shown = set()
     for d, _, names in os.walk(ROOT):
-        if any(part.startswith(".") for part in os.path.relpath(d, ROOT).split(os.sep)) or "src" in d:
+        if any(part.startswith((".", "_build")) for part in os.path.relpath(d, ROOT).split(os.sep)) or "src" in d:
             continue
         for name in names:
             if name.endswith(".md"):

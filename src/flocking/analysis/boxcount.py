@@ -95,10 +95,14 @@ class BoxCounting(Analysis):
 
     Parameters
     ----------
-    fit_range: ``(eps_min, eps_max)`` in length units (pixels for an image): fit only box
+    fit_range
+        ``(eps_min, eps_max)`` in length units (pixels for an image): fit only box
         sides in it. Default: see the module.
-    start: for a trajectory, the window; the last frame of it is measured.
+    start
+        For a trajectory, the window; the last frame of it is measured.
 
+    Notes
+    -----
     ``compute(system, box=None)``: ``system`` is a boolean image (2D or 3D array), an
     ``(N, d)`` array of points (in ``box``, a number or one length per axis, or in their
     bounding cube), or anything with frames (positions in the periodic box).

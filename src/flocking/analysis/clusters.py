@@ -82,9 +82,11 @@ class Clusters(Analysis):
 
     Parameters
     ----------
-    radius: link distance (strictly closer). Default: the trajectory's interaction radius
+    radius
+        Link distance (strictly closer). Default: the trajectory's interaction radius
         when it stores one, else 1.
-    start, frames: the window. Labels are those of the last frame; the size distribution
+    start, frames
+        The window. Labels are those of the last frame; the size distribution
         and the averages are over all frames of the window.
     """
 

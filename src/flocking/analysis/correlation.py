@@ -117,10 +117,14 @@ class VelocityCorrelation(Analysis):
 
     Parameters
     ----------
-    r_max: largest distance (default: half the smallest box side; the whole side between walls).
-    dr: bin width (default: ``min(0.5, r_max / 20)``).
-    method: ``"auto"``, ``"cells"`` (exact) or ``"grid"`` (FFT); see the module.
-    start, frames: the window.
+    r_max
+        Largest distance (default: half the smallest box side; the whole side between walls).
+    dr
+        Bin width (default: ``min(0.5, r_max / 20)``).
+    method
+        ``"auto"``, ``"cells"`` (exact) or ``"grid"`` (FFT); see the module.
+    start, frames
+        The window.
     """
 
     _keys = ("r", "correlation", "pairs", "correlation_length", "r_max_used", "method_used", "num_frames")
@@ -144,7 +148,7 @@ class VelocityCorrelation(Analysis):
     pairs = result("pairs", "Number of ordered pairs i != j per bin, over all frames.")
     correlation_length = result("correlation_length", "First zero of C(r).")
     r_max_used = result("r_max_used", "The largest distance of C(r).")
-    du_squared = result("du_squared", "sum_i |du_i|^2 over all frames (the sum rule's right side).")
+    du_squared = result("du_squared", "``sum_i |du_i|^2`` over all frames (the sum rule's right side).")
     method_used = result("method_used", "'cells' or 'grid'.")
     num_frames = result("num_frames", "Number of frames averaged.")
 

@@ -98,9 +98,12 @@ class NumberFluctuations(Analysis):
 
     Parameters
     ----------
-    sizes: sub-box sides (default: see the module); a side larger than the box is refused.
-    fit_range: ``(n_min, n_max)``: fit only sizes whose ``<n>`` lies in it (default: all).
-    start, frames: the window (see :func:`flocking.analysis.snapshots.select`).
+    sizes
+        Sub-box sides (default: see the module); a side larger than the box is refused.
+    fit_range
+        ``(n_min, n_max)``: fit only sizes whose ``<n>`` lies in it (default: all).
+    start, frames
+        The window (see :func:`flocking.analysis.snapshots.select`).
     """
 
     _keys = ("sizes", "mean", "std", "alpha", "alpha_error", "fitted", "num_frames")

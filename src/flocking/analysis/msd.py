@@ -155,10 +155,15 @@ class MeanSquareDisplacement(Analysis):
 
     Parameters
     ----------
-    max_lag: largest lag in steps (default: all).
-    dt: time step of the data (default: the run's stored ``dt``, else 1).
-    start, frames: the window (consecutive frames; do not thin them, or unwrapping fails).
+    max_lag
+        Largest lag in steps (default: all).
+    dt
+        Time step of the data (default: the run's stored ``dt``, else 1).
+    start, frames
+        The window (consecutive frames; do not thin them, or unwrapping fails).
 
+    Notes
+    -----
     ``compute(system, steps=None)``: ``steps`` overrides the frames' steps (for inputs
     without steps, such as ``(box, points)`` tuples).
     """

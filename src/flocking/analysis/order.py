@@ -397,16 +397,18 @@ class PolarOrder(_Order):
 
     Parameters
     ----------
-    start:
+    start
         The window: the first step kept (``int``), the fraction of the series to discard
         when ``0 < start < 1``, or ``"auto"``: the end of the transient, detected (see
         the module). Default: keep everything.
-    dt:
+    dt
         Time step of the data (default: the run's stored ``dt``, else 1).
-    species:
+    species
         The name of one species: the polar order of its particles alone
         (``|sum_{i in s} u_i| / N_s``; ``n`` is then ``N_s``). Default: every particle.
 
+    Notes
+    -----
     ``compute(system, n=None)`` accepts a run folder (its ``observables.csv``: every
     step; a column ``polar_order_<species>`` for a species), an ``observables.csv`` path,
     a 1D array of values (``n`` is then needed for the susceptibility; otherwise it is

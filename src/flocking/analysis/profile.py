@@ -320,15 +320,21 @@ class DensityProfile(Analysis):
 
     Parameters
     ----------
-    direction: the direction to profile along: an axis (0, 1, 2) or a lattice vector such
+    direction
+        The direction to profile along: an axis (0, 1, 2) or a lattice vector such
         as ``(1, -1)`` (entries along periodic axes only). Default: found (see the module).
-    bin_width: slab width (default: at least 1, wide enough for 50 particles per slab on
+    bin_width
+        Slab width (default: at least 1, wide enough for 50 particles per slab on
         average, and at least 8 slabs).
-    threshold: a candidate band is denser than ``(1 + threshold)`` times the mean density.
-    z_min: a band's excess mass must be at least ``z_min`` standard deviations of that of a
+    threshold
+        A candidate band is denser than ``(1 + threshold)`` times the mean density.
+    z_min
+        A band's excess mass must be at least ``z_min`` standard deviations of that of a
         homogeneous state (see the module).
-    dt: time step of the data (default: the run's stored ``dt``, else 1).
-    start, frames: the window.
+    dt
+        Time step of the data (default: the run's stored ``dt``, else 1).
+    start, frames
+        The window.
     """
 
     _keys = ("lattice", "direction", "angle", "axis_used", "period", "direction_rule", "heading_sign", "candidates",
