@@ -84,6 +84,8 @@ def kernel(model: Model) -> str:
         if not on.extended:
             return "lines"
         return "extended weighted" if on.weighted else "extended lines"
+    if model.neighbours == "voronoi":
+        return "voronoi"
     if model.neighbours == "topological":
         return "extended topological" if on.extended else "topological"
     return "extended" if on.extended else "generic"
