@@ -167,19 +167,22 @@ def sides(simplices, flat, centres, n_sites, tol):
 
 
 def site_pairs(sites: np.ndarray, box: np.ndarray, walls: np.ndarray) -> np.ndarray | None:
-    """Pairs ``(p, q)`` of distinct sites, both orders, each once, that are Voronoi
-    neighbours; ``None`` when Qhull cannot triangulate (see the module's docstring)."""
+    """Pairs ``(p, q)`` of sites that are Voronoi neighbours (some repeated, maybe only one
+    order of a pair); ``None`` when Qhull cannot triangulate (see the module's docstring)."""
     delaunay, qhull_error = qhull()
     u, d = sites.shape
     spacing = (float(np.prod(box)) / u) ** (1.0 / d)
     w = FIRST_MARGIN * spacing
     for _ in range(TRIES):
         pts, src = images(sites, box, walls, w)
-        try:
-            tri = delaunay(pts)
+        try:  # Qhull's options for Delaunay in scipy but Q12, which cost a third more time here
+            tri = delaunay(pts, qhull_options="Qbb Qc Qz")
         except qhull_error:
-            w *= 2.0
-            continue
+            try:
+                tri = delaunay(pts)
+            except qhull_error:
+                w *= 2.0
+                continue
         simplices = tri.simplices.astype(np.int64)
         touching = np.any(simplices < u, axis=1)
         simplices = simplices[touching]
@@ -189,24 +192,54 @@ def site_pairs(sites: np.ndarray, box: np.ndarray, walls: np.ndarray) -> np.ndar
             w = 1.1 * float(need.max())
             continue
         edges = sides(simplices, flat, centres, u, TIE * spacing ** (d - 1))
-        alias = np.arange(len(pts))
-        if len(tri.coplanar):  # points Qhull left out stand in for the vertex it names
-            alias[tri.coplanar[:, 0]] = tri.coplanar[:, 2]
-        pairs = src[alias[edges]]
-        pairs = pairs[pairs[:, 0] != pairs[:, 1]]
-        left_out = tri.coplanar[:, 0][tri.coplanar[:, 0] < u] if len(tri.coplanar) else np.zeros(0, np.int64)
-        extra = np.stack([left_out, src[alias[left_out]]], axis=1)  # and neighbour it
-        pairs = np.concatenate([pairs, extra[extra[:, 0] != extra[:, 1]]])
-        pairs = np.concatenate([pairs, pairs[:, ::-1]])
-        # a left-out point shares the neighbours of its stand-in
-        for p, q in extra:
-            if p != q:
-                shared = pairs[pairs[:, 0] == q, 1]
-                shared = shared[shared != p]
-                pairs = np.concatenate([pairs, np.stack([np.full_like(shared, p), shared], 1),
-                                        np.stack([shared, np.full_like(shared, p)], 1)])
-        return np.unique(pairs, axis=0)
+        pairs = src[edges]
+        if len(tri.coplanar):
+            pairs = left_out(pairs, tri.coplanar, src, u)
+        return pairs
     return None
+
+
+def left_out(pairs: np.ndarray, coplanar: np.ndarray, src: np.ndarray, u: int) -> np.ndarray:
+    """``pairs`` with the sites Qhull left out (``coplanar``: point, facet, nearest
+    vertex) put in: each a neighbour of the vertex it names and of that vertex's neighbours."""
+    pairs = np.concatenate([pairs, pairs[:, ::-1]])
+    for point, _, vertex in coplanar:
+        p, q = src[point], src[vertex]
+        if point >= u or p == q:
+            continue
+        shared = pairs[(pairs[:, 0] == q) & (pairs[:, 1] != p), 1]
+        pairs = np.concatenate([pairs, [[p, q]], np.stack([np.full_like(shared, p), shared], 1)])
+    return pairs
+
+
+@numba.njit(cache=True)
+def compress(i, j, n):
+    """The pairs ``(i, j)`` (either order, repeats, ``i == j`` allowed) as compressed rows of
+    ``n`` particles: both orders, each once, no ``i == j``, each row in increasing order."""
+    count = np.zeros(n + 1, dtype=np.int64)
+    for e in range(i.shape[0]):
+        if i[e] != j[e]:
+            count[i[e] + 1] += 1
+            count[j[e] + 1] += 1
+    offsets = np.cumsum(count)
+    fill = offsets[:-1].copy()
+    nbrs = np.empty(offsets[n], dtype=np.int64)
+    for e in range(i.shape[0]):
+        if i[e] != j[e]:
+            nbrs[fill[i[e]]] = j[e]
+            fill[i[e]] += 1
+            nbrs[fill[j[e]]] = i[e]
+            fill[j[e]] += 1
+    out = np.zeros(n + 1, dtype=np.int64)
+    k = 0
+    for r in range(n):
+        row = np.sort(nbrs[offsets[r]:offsets[r + 1]])
+        for c in range(row.shape[0]):
+            if c == 0 or row[c] != row[c - 1]:
+                nbrs[k] = row[c]
+                k += 1
+        out[r + 1] = k
+    return out, nbrs[:k].copy()
 
 
 def graph(pos: np.ndarray, box: np.ndarray, walls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -224,7 +257,7 @@ def graph(pos: np.ndarray, box: np.ndarray, walls: np.ndarray) -> tuple[np.ndarr
     if new_site.all():  # no coincident particles: each particle a site, in slot order
         pairs = site_pairs(points, box, walls)
         if pairs is not None:
-            i, j = pairs[:, 0], pairs[:, 1]
+            return compress(pairs[:, 0], pairs[:, 1], n)
     else:
         first = np.flatnonzero(np.concatenate([new_site, [True]]))  # particles order[first[s]:first[s + 1]]
         pairs = site_pairs(ranked[new_site], box, walls)
@@ -235,15 +268,7 @@ def graph(pos: np.ndarray, box: np.ndarray, walls: np.ndarray) -> tuple[np.ndarr
                 a, b = order[first[p]:first[p + 1]], order[first[q]:first[q + 1]]
                 i_parts.append(np.repeat(a, len(b)))
                 j_parts.append(np.tile(b, len(a)))
-            i, j = np.concatenate(i_parts), np.concatenate(j_parts)
-            keep = i != j
-            i, j = i[keep], j[keep]
-    if pairs is None:
-        everyone = np.ones((n, n), dtype=bool)
-        np.fill_diagonal(everyone, False)
-        i, j = np.nonzero(everyone)
-    idx = np.lexsort((j, i))
-    i, j = i[idx], j[idx]
-    offsets = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(i, minlength=n), out=offsets[1:])
-    return offsets, j.astype(np.int64)
+            return compress(np.concatenate(i_parts), np.concatenate(j_parts), n)
+    everyone = np.ones((n, n), dtype=bool)  # Qhull could not triangulate
+    i, j = np.nonzero(everyone)
+    return compress(i.astype(np.int64), j.astype(np.int64), n)

@@ -51,7 +51,8 @@ from ..model import Model, ParameterError
 #: elsewhere (a box under ``3R``) 7 times the plain cost per particle, 20 times per candidate.
 COSTS = {"lines": (300.0, 2.0), "generic": (300.0, 25.0), "topological": (250.0, 2.5),
          "extended lines": (300.0, 2.5), "extended weighted": (350.0, 6.0),
-         "extended": (2500.0, 50.0), "extended topological": (450.0, 15.0)}
+         "extended": (2500.0, 50.0), "extended topological": (450.0, 15.0),
+         "voronoi": (22000.0, 0.0)}  # Qhull's triangulation, serial: 2.2 s a step at N = 1e5 (docs/voronoi.md)
 #: nanoseconds per particle and obstacle: each particle is tested against every obstacle
 OBSTACLE_COST = 25.0
 
@@ -101,7 +102,7 @@ def step_cost(model: Model, positions: np.ndarray) -> tuple[float, float]:
     particle, candidate = COSTS[name]
     if name.endswith("topological"):
         particle *= model.k + 1
-    particle *= 1 if d == 2 else 2
+    particle *= 1 if d == 2 else (5.5 if name == "voronoi" else 2)  # 3D Voronoi: 1.2 s at N = 1e4
     particle += OBSTACLE_COST * len(model.obstacles)
     return (n * particle + candidates * candidate) * 1e-9, candidates / max(n, 1)
 
