@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 import flocking
 from flocking import Model, State
-from flocking.backends import delaunay
+from flocking.backends import delaunay, voronoi_cells
 from flocking.backends.cpu import CPUBackend
 from flocking.backends.reference import ReferenceBackend
 from flocking.backends.reference_voronoi import voronoi_matrix
@@ -31,19 +31,33 @@ SRC = os.path.dirname(os.path.dirname(flocking.__file__))
 def cpu_matrix(points, box, walls):
     """The CPU backend's neighbours of ``points`` ``(n, d)`` as a matrix."""
     points = np.asarray(points, dtype=np.float64)
-    offsets, nbrs = delaunay.graph(np.ascontiguousarray(points.T), np.asarray(box, float), np.asarray(walls))
-    a = np.zeros((len(points), len(points)), dtype=bool)
-    for i in range(len(points)):
+    found = delaunay.graph(np.ascontiguousarray(points.T), np.asarray(box, float), np.asarray(walls))
+    return matrix(found, len(points))
+
+
+def matrix(found, n):
+    """Compressed rows as a matrix."""
+    offsets, nbrs = found
+    a = np.zeros((n, n), dtype=bool)
+    for i in range(n):
         assert np.all(np.diff(nbrs[offsets[i]:offsets[i + 1]]) > 0)  # increasing, each once
         a[i, nbrs[offsets[i]:offsets[i + 1]]] = True
     return a
+
+
+def cells_matrix(points, box, walls):
+    """The CPU backend's neighbours by each particle's own cell (2D; in 3D, or where that
+    method does not apply, the triangulation's, which the other cases test)."""
+    points = np.asarray(points, dtype=np.float64)
+    found = voronoi_cells.from_points(points, box, walls) if points.shape[1] == 2 else None
+    return cpu_matrix(points, box, walls) if found is None else matrix(found, len(points))
 
 
 def ref_matrix(points, box, walls):
     return voronoi_matrix(np.asarray(points, dtype=np.float64), box, walls)
 
 
-BOTH = pytest.mark.parametrize("neighbours", [cpu_matrix, ref_matrix], ids=["cpu", "reference"])
+BOTH = pytest.mark.parametrize("neighbours", [cpu_matrix, cells_matrix, ref_matrix], ids=["qhull", "cells", "reference"])
 
 
 def lattice(shape, spacing=1.0):
@@ -156,7 +170,25 @@ def test_cpu_and_reference_agree_on_random_states(dim, n, walls):
     rng = np.random.default_rng(n + dim)
     box = rng.uniform(2.0, 5.0, dim)
     points = rng.random((n, dim)) * box
-    assert np.array_equal(cpu_matrix(points, box, walls), ref_matrix(points, box, walls))
+    expect = ref_matrix(points, box, walls)
+    assert np.array_equal(cpu_matrix(points, box, walls), expect)
+    assert np.array_equal(cells_matrix(points, box, walls), expect)
+
+
+@pytest.mark.parametrize("walls", [(False, False), (True, False), (True, True)])
+@pytest.mark.parametrize("side", [0.4, 1.0])
+def test_cut_cells_agree_with_the_reference(walls, side):
+    # each particle's own cell, cut in rings of cells (in boxes large enough that no ring wraps)
+    rng = np.random.default_rng(7)
+    box = np.array([13.0, 11.0])
+    points = rng.random((280, 2)) * box
+    found = voronoi_cells.from_points(points, box, walls, side)
+    assert found is not None and np.array_equal(matrix(found, len(points)), ref_matrix(points, box, walls))
+    few = voronoi_cells.from_points(points[:4], box, walls, side)
+    if not all(walls):  # a ring would wrap around the periodic box: left to the triangulation
+        assert few is None
+    else:
+        assert np.array_equal(matrix(few, 4), ref_matrix(points[:4], box, walls))
 
 
 def test_the_margin_grows_until_it_is_enough(monkeypatch):

@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from ..rules import rebind
-from . import cells, cpu_kernels, delaunay
+from . import cells, cpu_kernels, delaunay, voronoi_cells
 from .features import Features
 
 # the flags and functions these read are bound per variant by kernel(), as in cpu_kernels
@@ -109,16 +109,19 @@ def build(features: Features, dim: int):
 
 def kernel(features: Features, dim: int, box, walls):
     """A step with the ``search`` kernel's arguments
-    (:func:`flocking.backends.cpu_kernels.build`) over Voronoi neighbours: the list of
-    :func:`flocking.backends.delaunay.graph`, then the ``graph`` kernel. Refuses, in one
-    line, to be made without scipy."""
+    (:func:`flocking.backends.cpu_kernels.build`) over Voronoi neighbours: the lists of
+    :func:`flocking.backends.voronoi_cells.graph` (2D, each particle's cell cut in
+    parallel) or where that does not apply of :func:`flocking.backends.delaunay.graph`
+    (Qhull), the same lists; then the ``graph`` kernel. Refuses, in one line, to be made
+    without scipy."""
     delaunay.qhull()
     compiled = build(features, dim)
     box, walls = np.asarray(box, dtype=np.float64), np.asarray(walls, dtype=bool)
 
     def step(pos, head, spd, ids, start, nc, box_, new_pos, new_head, cell, ring, slot, t, seed, params, partial,
              threads, tb):
-        offsets, nbrs = delaunay.graph(pos, box, walls)
+        found = voronoi_cells.graph(pos, start, nc, box, walls) if dim == 2 else None
+        offsets, nbrs = found if found is not None else delaunay.graph(pos, box, walls)
         compiled(pos, head, spd, ids, start, nc, box_, new_pos, new_head, cell, ring, slot, t, seed, params,
                  partial, threads, tb, offsets, nbrs)
 
