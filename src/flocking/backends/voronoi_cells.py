@@ -112,7 +112,12 @@ def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qta
     for k in range(m):
         k1 = k + 1 if k + 1 < m else 0
         if tag[k] >= 0 and (px[k1] - px[k]) ** 2 + (py[k1] - py[k]) ** 2 > tol * tol:
-            found[count] = tag[k]
+            # in increasing order (a side per neighbour: no repeats)
+            p = count
+            while p > 0 and found[p - 1] > tag[k]:
+                found[p] = found[p - 1]
+                p -= 1
+            found[p] = tag[k]
             count += 1
     return count
 
@@ -130,20 +135,24 @@ def all_cells(pos, start, nc, box, walls, tol, out, counts):
             counts[i] = cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qtag, out[i])
 
 
-@numba.njit(cache=True)
-def pairs_of(out, counts):
-    total = 0
-    for i in range(counts.shape[0]):
-        total += counts[i]
-    a = np.empty(total, dtype=np.int64)
-    b = np.empty(total, dtype=np.int64)
-    q = 0
-    for i in range(counts.shape[0]):
+@numba.njit(cache=True, parallel=True)
+def rows(out, counts):
+    """The sorted lists ``out[i, :counts[i]]`` as compressed rows, and whether every pair
+    is listed both ways (a side within rounding of ``TIE`` can be seen by one cell only)."""
+    n = counts.shape[0]
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    offsets[1:] = np.cumsum(counts)
+    nbrs = np.empty(offsets[n], dtype=np.int64)
+    ok = np.ones(n, dtype=np.bool_)
+    for i in numba.prange(n):
         for k in range(counts[i]):
-            a[q] = i
-            b[q] = out[i, k]
-            q += 1
-    return a, b
+            j = out[i, k]
+            nbrs[offsets[i] + k] = j
+            mutual = False
+            for q in range(counts[j]):
+                mutual |= out[j, q] == i
+            ok[i] &= mutual
+    return offsets, nbrs, ok.all()
 
 
 def graph(pos: np.ndarray, start: np.ndarray, nc: np.ndarray, box: np.ndarray, walls: np.ndarray):
@@ -160,8 +169,10 @@ def graph(pos: np.ndarray, start: np.ndarray, nc: np.ndarray, box: np.ndarray, w
               delaunay.TIE * spacing, out, counts)
     if counts.min() < 0:
         return None
-    a, b = pairs_of(out, counts)
-    return delaunay.compress(a, b, n)
+    offsets, nbrs, mutual = rows(out, counts)
+    if mutual:
+        return offsets, nbrs
+    return delaunay.compress(np.repeat(np.arange(n), counts), nbrs, n)  # both ways
 
 
 def from_points(points: np.ndarray, box, walls, side: float = 1.0):
