@@ -164,11 +164,11 @@ def test_collinear_particles_in_walls_are_strips(neighbours):
 
 
 @pytest.mark.parametrize("dim, n, walls", [(2, 60, (False, False)), (2, 40, (True, False)), (2, 40, (True, True)),
-                                           (2, 5, (False, False)), (3, 14, (False, False, False)),
-                                           (3, 12, (True, False, True))])
+                                           (2, 5, (False, False)), (3, 16, (False, False, False)),
+                                           (3, 16, (True, False, True))])
 def test_cpu_and_reference_agree_on_random_states(dim, n, walls):
     rng = np.random.default_rng(n + dim)
-    box = rng.uniform(2.0, 5.0, dim)
+    box = rng.uniform(2.0, 5.0, dim) if dim == 2 else np.array([2.6, 2.4, 2.5])  # 3D: the reference's cost grows fast
     points = rng.random((n, dim)) * box
     expect = ref_matrix(points, box, walls)
     assert np.array_equal(cpu_matrix(points, box, walls), expect)
