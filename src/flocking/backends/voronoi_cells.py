@@ -23,7 +23,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from . import delaunay
+from . import cells, delaunay
 
 #: most sides a cell may have (a random state's have 4 to about 12)
 MAX_SIDES = 48
@@ -59,7 +59,8 @@ def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qta
     xi, yi = pos[0, i], pos[1, i]
     hx, hy = box[0] / nc[0], box[1] / nc[1]
     step = min(hx, hy)
-    gx, gy = min(int(xi / hx), nc[0] - 1), min(int(yi / hy), nc[1] - 1)
+    c0 = cells.cell_of(pos, i, nc, nc / box)  # the cell the sort put it in
+    gx, gy = c0 % nc[0], c0 // nc[0]
     lo_x, hi_x = (-xi, box[0] - xi) if walls[0] else (-0.5 * box[0], 0.5 * box[0])
     lo_y, hi_y = (-yi, box[1] - yi) if walls[1] else (-0.5 * box[1], 0.5 * box[1])
     px[0], py[0], px[1], py[1] = lo_x, lo_y, hi_x, lo_y
@@ -105,7 +106,7 @@ def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qta
                     for k in range(m):
                         px[k], py[k], tag[k] = qx[k], qy[k], qtag[k]
                         rho2 = max(rho2, px[k] * px[k] + py[k] * py[k])
-        if 4.0 * rho2 <= (r * step) ** 2:
+        if 4.0 * rho2 <= (r * step * (1.0 - 1e-12)) ** 2:  # a margin for the rounding of cell indices
             break
         r += 1
     count = 0
@@ -181,8 +182,8 @@ def from_points(points: np.ndarray, box, walls, side: float = 1.0):
     points = np.asarray(points, dtype=np.float64)
     box, walls = np.asarray(box, dtype=np.float64), np.asarray(walls, dtype=np.bool_)
     nc = np.maximum(1, np.floor(box / side)).astype(np.int64)
-    g = np.minimum((points / (box / nc)).astype(np.int64), nc - 1)
-    cell = g[:, 1] * nc[0] + g[:, 0]
+    cell = np.empty(len(points), dtype=np.int64)
+    cells.cell_indices(np.ascontiguousarray(points.T), nc, nc / box, cell)
     order = np.argsort(cell, kind="stable")
     start = np.searchsorted(cell[order], np.arange(int(np.prod(nc)) + 1)).astype(np.int64)
     found = graph(np.ascontiguousarray(points[order].T), start, nc, box, walls)
