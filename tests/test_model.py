@@ -20,7 +20,7 @@ from flocking.model import dumps_toml, loads_toml
     (dict(speed=0.0), "speed: must be a finite number > 0"),
     (dict(speed=float("inf")), "speed: must be a finite number > 0"),
     (dict(speeds="random"), "speeds: must be one of 'constant', 'uniform'"),
-    (dict(neighbours="voronoi"), "neighbours: must be one of 'metric', 'topological'"),
+    (dict(neighbours="delaunay"), "neighbours: must be one of 'metric', 'topological', 'voronoi' (got 'delaunay')"),
     (dict(radius=0), "radius: must be in (0, 1e+150]"),
     (dict(radius=1e200), "radius: must be in (0, 1e+150]"),
     (dict(box=1e160), "box: must be sides whose product (the volume) is a finite number"),

@@ -379,6 +379,15 @@ def test_step_and_parameter_changes_continue_the_state(ws):
     assert frame(ws)["step"] == 2
 
 
+def test_voronoi_neighbours_are_a_choice_of_the_page(ws):
+    ws.send_text('{"type": "set", "params": {"neighbours": "voronoi"}}')
+    assert reply(ws, "state")["model"]["neighbours"] == "voronoi"
+    assert frame(ws)["step"] == 0
+    ws.send_text('{"type": "step"}')
+    assert frame(ws)["step"] == 1
+    assert CPUBackend.step_cost(Model(n=10_000, neighbours="voronoi"), np.zeros((10_000, 2)))[0] > 0.1  # as measured
+
+
 def test_speed_change_moves_particles_at_the_new_speed(ws):
     ws.send_text('{"type": "set", "params": {"speed": 1.25, "noise": 0.0}}')
     first = frame(ws)

@@ -47,6 +47,7 @@ MODELS = [
     (50, dict(n=50, box=6.0, neighbours="topological", boundary="wall")),  # search_2d_10000
     (61, dict(n=50, box=6.0, neighbours="topological", vision=2.0)),  # search_2d_11110
     (56, dict(n=50, box=6.0, dim=3, neighbours="topological")),  # search_3d_00000
+    (40, dict(n=50, box=6.0, neighbours="voronoi")),  # graph_2d_00000, not measured: taken as the search's
 ]
 
 

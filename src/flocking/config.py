@@ -53,6 +53,13 @@ class RunConfig:
         if self.precision == "float32" and self.backend != "cuda":
             raise ParameterError(f"precision: 'float32' needs the cuda backend (got backend {self.backend!r})")
         backends.get(self.backend)  # refuses unknown or unavailable backends
+        if self.model.neighbours == "voronoi":  # docs/voronoi.md
+            if self.backend == "cuda":
+                raise ParameterError("neighbours: the cuda backend has no 'voronoi' neighbours: use 'cpu'")
+            if self.backend == "cpu":
+                from .backends.delaunay import qhull
+
+                qhull()  # refuses, in one line, a machine without scipy
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RunConfig:

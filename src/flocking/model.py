@@ -34,7 +34,7 @@ DEFAULT_BOX = 32.0
 CHOICES = {
     "dim": (2, 3),
     "speeds": ("constant", "uniform"),
-    "neighbours": ("metric", "topological"),
+    "neighbours": ("metric", "topological", "voronoi"),
     "noise_type": ("angular", "vectorial"),
     "update": ("backward", "forward"),
     "noise_scale": ("radians", "unit"),
@@ -376,7 +376,8 @@ class Model:
 
     def __str__(self) -> str:
         text = f"{self.dim}D, N={self.n}, box={'x'.join(f'{x:g}' for x in self.box)}, "
-        text += f"{self.neighbours} ({f'R={self.radius:g}' if self.neighbours == 'metric' else f'k={self.k}'}), "
+        reach = {"metric": f" (R={self.radius:g})", "topological": f" (k={self.k})"}.get(self.neighbours, "")
+        text += f"{self.neighbours}{reach}, "
         text += f"{self.noise_type} noise {self.noise:.4g}, v0={self.speed:g}"
         if self.alignment != 1.0:
             text += f", alignment={self.alignment:g}"

@@ -66,7 +66,11 @@ def kernel_name(model: Model) -> str:
     ('lines', 'search')
     >>> kernel_name(Model(n=100, box=10.0, neighbours="topological"))
     'search'
+    >>> kernel_name(Model(n=100, box=10.0, neighbours="voronoi"))  # flocking.backends.cpu_graph
+    'graph'
     """
+    if model.neighbours == "voronoi":
+        return "graph"
     if model.neighbours == "metric" and np.all(cells.cell_grid(model) >= 3):
         return "lines"
     return "search"
@@ -137,7 +141,12 @@ class CPUBackend:
         self._step_count = state.step
         self._features = features(model)
         kernel = kernel_name(model)
-        self._kernel = getattr(cpu_kernels.build(cpu_kernels.variant(self._features, kernel), d), kernel)
+        if kernel == "graph":  # Voronoi neighbours: a list made each step, then a kernel over it
+            from . import cpu_graph
+
+            self._kernel = cpu_graph.kernel(self._features, d, model.box, model.walls)
+        else:
+            self._kernel = getattr(cpu_kernels.build(cpu_kernels.variant(self._features, kernel), d), kernel)
         units = cells.work_units(self._nc, n, 0 if kernel == "lines" else 1)
         self._partial = np.zeros((units, moment_width(model) if model.extended else 3))
         self._params = step(model)

@@ -41,19 +41,20 @@ from .features import features
 #: elsewhere (a box under ``3R``) 7 times the plain cost per particle, 20 times per candidate.
 COSTS = {"lines": (300.0, 2.0), "generic": (300.0, 25.0), "topological": (250.0, 2.5),
          "extended lines": (300.0, 2.5), "extended weighted": (350.0, 6.0),
-         "extended": (2500.0, 50.0), "extended topological": (450.0, 15.0)}
+         "extended": (2500.0, 50.0), "extended topological": (450.0, 15.0),
+         "voronoi": (22000.0, 0.0)}  # Qhull's triangulation, serial: 2.2 s a step at N = 1e5 (docs/voronoi.md)
 #: nanoseconds per particle and obstacle: each particle is tested against every obstacle
 OBSTACLE_COST = 25.0
 
 
 def kind(model: Model, kernel: str) -> str:
     """Which of :data:`COSTS` prices ``model``'s step, given the kernel that runs it
-    (``lines`` or ``search``, :func:`flocking.backends.cpu.kernel_name`) and what it
+    (``lines``, ``search`` or ``graph``, :func:`flocking.backends.cpu.kernel_name`) and what it
     compiles in (:func:`flocking.backends.features.features`): ``lines`` (metric, at
     least three cells a side), ``generic`` (metric, a box under ``3R`` along some axis),
     ``topological``, or with any extension ``extended lines`` (no pair weights),
     ``extended weighted`` (a coupling matrix, nematic alignment, a vision cone or
-    cohesion), ``extended`` (a box under ``3R``) and ``extended topological``.
+    cohesion), ``extended`` (a box under ``3R``), ``extended topological`` and ``voronoi``.
 
     >>> kind(Model(n=100, box=10.0), "lines"), kind(Model(n=100, box=10.0, boundary="wall"), "lines")
     ('lines', 'extended lines')
@@ -65,6 +66,8 @@ def kind(model: Model, kernel: str) -> str:
         if not on.extended:
             return "lines"
         return "extended weighted" if on.weighted else "extended lines"
+    if model.neighbours == "voronoi":
+        return "voronoi"
     if model.neighbours == "topological":
         return "extended topological" if on.extended else "topological"
     return "extended" if on.extended else "generic"
@@ -80,7 +83,7 @@ def step_cost(model: Model, positions: np.ndarray, kernel: str) -> tuple[float, 
     particle, candidate = COSTS[name]
     if name.endswith("topological"):
         particle *= model.k + 1
-    particle *= 1 if d == 2 else 2
+    particle *= 1 if d == 2 else (5.5 if name == "voronoi" else 2)  # 3D Voronoi: 1.2 s at N = 1e4
     particle += OBSTACLE_COST * len(model.obstacles)
     return (n * particle + around * candidate) * 1e-9, around / max(n, 1)
 

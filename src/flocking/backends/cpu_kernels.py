@@ -712,13 +712,21 @@ def build(features: Features, dim: int) -> types.SimpleNamespace:
     calls, so code that a flag leaves out is never compiled, which keeps a variant's
     compilation short. The kernels are cached on disk under a name of their own.
     """
+    namespace, tag = variant_namespace(features, dim), cache_tag(features, dim)
+    kernels = {name: numba.njit(cache=True, parallel=True)(rebind(globals()[name], namespace, f"{name}_{tag}"))
+               for name in ("lines", "search")}
+    return types.SimpleNamespace(**kernels, features=features)
+
+
+@functools.lru_cache(maxsize=None)
+def variant_namespace(features: Features, dim: int) -> dict:
+    """The globals :func:`build` compiles a variant's kernels with: its flags, and the
+    functions of :data:`VARIANT` compiled with them (another kernel that reuses them,
+    :mod:`flocking.backends.cpu_graph`, is compiled with the same)."""
     flags = dict(EXT=features.extended, CPL=features.coupling, NEM=features.nematic, CONE=features.cone,
                  COH=features.cohesion, WEIGHTED=features.weighted, DIM=dim)
     namespace = {**globals(), **flags}
     for name in VARIANT:
         namespace[name] = numba.njit(inline="always")(rebind(globals()[name], namespace))
-    tag = cache_tag(features, dim)
-    kernels = {name: numba.njit(cache=True, parallel=True)(rebind(globals()[name], namespace, f"{name}_{tag}"))
-               for name in ("lines", "search")}
-    return types.SimpleNamespace(**kernels, features=features)
+    return namespace
 

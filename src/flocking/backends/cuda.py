@@ -507,9 +507,11 @@ def device_tables(models: Sequence[Model], real) -> tuple[np.ndarray, ...]:
 
 
 def check_supported(models: Sequence[Model]) -> None:
-    """Refuse, in one line, models whose moment sums (``dim`` per species, then the
-    nematic products) do not fit the kernels' shared memory (:data:`MAX_WIDTH`)."""
+    """Refuse, in one line, Voronoi neighbours and models whose moment sums (``dim`` per
+    species, then the nematic products) do not fit the kernels' shared memory (:data:`MAX_WIDTH`)."""
     for model in models:
+        if model.neighbours == "voronoi":
+            raise ParameterError("neighbours: the cuda backend has no 'voronoi' neighbours: use 'cpu'")
         width = moment_width(model)
         if width > MAX_WIDTH:
             nematic = " and the nematic order" if model.alignment_rule == "nematic" else ""

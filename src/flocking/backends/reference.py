@@ -23,6 +23,7 @@ from .. import rng
 from ..model import Model
 from ..observables import moment_width
 from ..state import State, frame_arrays, random_unit_vectors
+from .reference_voronoi import voronoi_matrix
 
 
 def minimum_image(displacement: np.ndarray, box: np.ndarray, walls=None) -> np.ndarray:
@@ -36,7 +37,9 @@ def minimum_image(displacement: np.ndarray, box: np.ndarray, walls=None) -> np.n
 
 
 def neighbour_matrix(model: Model, positions: np.ndarray, headings: np.ndarray | None = None) -> np.ndarray:
-    """``A[i, j]`` is True when ``j`` is in the neighbourhood of ``i`` (``i`` included).
+    """``A[i, j]`` is True when ``j`` is in the neighbourhood of ``i`` (``i`` included):
+    within ``R``, among the ``k`` nearest, or a Voronoi neighbour
+    (:mod:`flocking.backends.reference_voronoi`).
 
     With a vision cone (``model.vision < pi``), ``j`` must lie within ``vision`` of the
     heading ``headings[i]``: ``u_i . (r_j - r_i) >= |r_j - r_i| cos(vision)``.
@@ -53,6 +56,10 @@ def neighbour_matrix(model: Model, positions: np.ndarray, headings: np.ndarray |
         for a in range(model.dim):
             dot += headings[:, None, a] * disp[:, :, a]
         seen = dot >= np.sqrt(d2) * np.cos(model.vision)
+    if model.neighbours == "voronoi":  # the cells' own definition, by brute force
+        a = voronoi_matrix(positions, box, model.walls) & seen
+        np.fill_diagonal(a, True)
+        return a
     if model.neighbours == "metric":
         a = (d2 < model.radius * model.radius) & seen
         np.fill_diagonal(a, True)

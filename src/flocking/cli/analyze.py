@@ -349,7 +349,8 @@ def caption(model, frames, window) -> str:
     if model is not None:
         box = model.box
         side = f"{box[0]:.4g}" if len(set(box)) == 1 else " × ".join(f"{b:.4g}" for b in box)
-        reach = f"R = {model.radius:g}" if model.neighbours == "metric" else f"k = {model.k} (topological)"
+        reach = {"metric": f"R = {model.radius:g}", "topological": f"k = {model.k} (topological)"}.get(
+            model.neighbours, model.neighbours)
         parts = [f"{model.dim}D", f"N = {model.n}", f"L = {side}", f"ρ = {model.n / math.prod(box):.3g}",
                  f"v₀ = {model.speed:g}" + (" (uniform)" if model.speeds == "uniform" else ""), reach,
                  f"η = {model.noise:.3g} ({model.noise_type})", f"Δt = {model.dt:g}"]

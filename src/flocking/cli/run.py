@@ -26,7 +26,7 @@ MODEL_OPTIONS = [
     ("--box", str, "Box side, or one per axis such as 4,5."),
     ("--speed", click.FLOAT, "Speed v0 (> 0)."),
     ("--speeds", opt.OneOf(CHOICES["speeds"]), "All v0, or each uniform in (0, v0]."),
-    ("--neighbours", opt.OneOf(CHOICES["neighbours"]), "Metric (radius) or topological (k nearest)."),
+    ("--neighbours", opt.OneOf(CHOICES["neighbours"]), "Metric (radius), topological (k nearest) or voronoi (docs/voronoi.md)."),
     ("--radius", click.FLOAT, "Interaction radius R, metric neighbours."),
     ("--k", click.INT, "Number of nearest neighbours, topological."),
     ("--noise", click.FLOAT, "Noise amplitude eta: [0, 2 pi] for angular noise."),

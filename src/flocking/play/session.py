@@ -257,7 +257,7 @@ def check_step(model: Model, positions: np.ndarray, name: str = "n") -> float:
     """
     seconds, candidates = CPUBackend.step_cost(model, positions)
     if seconds > MAX_STEP_SECONDS:
-        lower = "k or n" if model.neighbours == "topological" else "radius, n or density"
+        lower = {"topological": "k or n", "voronoi": "n"}.get(model.neighbours, "radius, n or density")
         if model.extended:
             lower += ", or turn extensions off"
         raise ParameterError(f"{name}: one step would take about {seconds:.2g} s here ({candidates:.0f} "

@@ -272,7 +272,8 @@ class _Setup:
         noise = self.single("noise_type")
         neighbours = self.single("neighbours")
         words = [w for w in (f"{noise} noise" if noise else None,
-                             {"metric": None, "topological": f"{self.single('k', '')} nearest neighbours"}
+                             {"metric": None, "topological": f"{self.single('k', '')} nearest neighbours",
+                              "voronoi": "Voronoi neighbours"}
                              .get(neighbours)) if w]
         name = f"{dim}D Vicsek model" if dim else "Vicsek model"
         return name + (f" with {' and '.join(words)}" if words else "")

@@ -240,6 +240,7 @@ function sync(reply) {
   syncExtensions(reply);
   for (const el of document.querySelectorAll(".metric")) el.classList.toggle("hidden", m.neighbours !== "metric");
   for (const el of document.querySelectorAll(".topological")) el.classList.toggle("hidden", m.neighbours !== "topological");
+  for (const el of document.querySelectorAll(".voronoi")) el.classList.toggle("hidden", m.neighbours !== "voronoi");
   $("play").textContent = reply.running ? "Pause" : "Play";
   stats.running = reply.running;
   const three = m.dim === 3;
