@@ -227,6 +227,14 @@ class Replica:
         """Centred positions and velocities, float32 ``(N, 3)`` in id order (a GSD frame's)."""
         return frame_arrays(self.state, self.model.box)
 
+    def fields(self, grid) -> np.ndarray:
+        """This replica's field sums (``backend.fields``; on cuda binned on the device, all
+        replicas in one launch)."""
+        ens = self.ensemble
+        if ens._engine is not None:
+            return ens._engine.fields(grid)[self.index]
+        return ens._singles[self.index].fields(grid)
+
     def parameters(self) -> dict[str, Any]:
         options = {"precision": self.ensemble.precision} if self.ensemble.backend == "cuda" else {}
         return {"model": self.model.to_dict(), "backend": self.ensemble.backend, "backend_options": options,

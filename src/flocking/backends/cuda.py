@@ -386,6 +386,21 @@ class Engine:
             done += chunk
         return out
 
+    def fields(self, grid) -> np.ndarray:
+        """Every replica's sums ``(R, species, channel, bin)`` of :class:`flocking.fields.Grid`
+        ``grid``, binned on the device from the live arrays: only the sums come back."""
+        from . import field_kernels
+
+        cuda = self._cuda
+        inv, shape = field_kernels.geometry(grid)
+        out = cuda.to_device(np.zeros((self.replicas, grid.species, grid.width, grid.bins)))
+        kernel = field_kernels.build("cuda", grid.dim, grid.species, grid.nematic)
+        m = self.replicas * self.n
+        bounds = cuda.to_device(np.asarray(grid.bounds, dtype=np.int64))
+        kernel[max(1, -(-m // self._block)), self._block](self._cur.pos, self._cur.head, self._cur.ids, bounds,
+                                                          cuda.to_device(inv), cuda.to_device(shape), self.n, out)
+        return out.copy_to_host()
+
     def states(self) -> list[State]:
         """Copies in particle-id order, float64 (float32 headings renormalised)."""
         n, d = self.n, self.dim
@@ -571,6 +586,10 @@ class CUDABackend:
     def frame_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Centred positions and velocities, float32 ``(N, 3)`` in id order (a GSD frame's)."""
         return frame_arrays(self.state, self.model.box)
+
+    def fields(self, grid) -> np.ndarray:
+        """The sums ``(species, channel, bin)`` of ``grid``, binned on the device (:meth:`Engine.fields`)."""
+        return self._engine.fields(grid)[0]
 
     @property
     def moments(self) -> np.ndarray:
