@@ -25,7 +25,7 @@ from .model import MODEL_KEYS, Model, dumps_toml, loads_toml
 from .state import State
 
 RUN_DEFAULTS = {"steps": 1000, "every": 10, "checkpoint_every": 1000, "init": "random", "backend": "cpu",
-                "precision": "float64"}
+                "precision": "float64", "fields": 0.0, "fields_every": 0}
 RUN_KEYS = MODEL_KEYS + tuple(RUN_DEFAULTS)
 INITS = ("random", "aligned")
 
@@ -39,6 +39,8 @@ class RunConfig:
     init: str = RUN_DEFAULTS["init"]
     backend: str = RUN_DEFAULTS["backend"]
     precision: str = RUN_DEFAULTS["precision"]
+    fields: float = RUN_DEFAULTS["fields"]  # bin size of the coarse-grained fields, 0: none
+    fields_every: int = RUN_DEFAULTS["fields_every"]  # 0: as every
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "steps", integer("steps", self.steps, 0))
@@ -53,6 +55,11 @@ class RunConfig:
         if self.precision == "float32" and self.backend != "cuda":
             raise ParameterError(f"precision: 'float32' needs the cuda backend (got backend {self.backend!r})")
         backends.get(self.backend)  # refuses unknown or unavailable backends
+        object.__setattr__(self, "fields_every", integer("fields_every", self.fields_every, 0))
+        if self.fields != 0:
+            from .fields import Grid
+
+            Grid.of(self.model, self.fields)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RunConfig:
@@ -96,9 +103,10 @@ class RunConfig:
 
     def to_dict(self) -> dict[str, Any]:
         init = self.init if self.init in INITS else os.path.abspath(self.init)
+        fields = {"fields": float(self.fields), "fields_every": self.fields_every} if self.fields else {}
         return {**self.model.to_dict(), "steps": self.steps, "every": self.every,
                 "checkpoint_every": self.checkpoint_every, "init": init, "backend": self.backend,
-                "precision": self.precision}
+                "precision": self.precision, **fields}
 
     def to_toml(self) -> str:
         return "# flocking run configuration: flocking run --config THIS_FILE repeats the run\n" + dumps_toml(
