@@ -112,15 +112,17 @@ class RunConfig:
         return "# flocking run configuration: flocking run --config THIS_FILE repeats the run\n" + dumps_toml(
             self.to_dict())
 
-    def check_memory(self, available: int | None = None) -> None:
-        """Refuse, with an estimate, a run that would not fit in the available memory: the
-        backend's, plus the trajectory writer's copy of a frame (24 bytes a particle)."""
+    def check_memory(self, available: int | None = None, device_free: int | None = None) -> None:
+        """Refuse, with an estimate and the largest N that fits, a run that would not fit in
+        the available memory: the backend's, plus the trajectory writer's copy of a frame (24
+        bytes a particle); with the cuda backend, also what the card needs against its free
+        memory (``device_free``, by default the card's: :mod:`flocking.backends.sizes`)."""
+        from .backends.sizes import check_device, check_host
+
         need = backends.get(self.backend).bytes_needed(self.model) + 24 * self.model.n
-        available = available_memory() if available is None else available
-        if available and need > 0.9 * available:
-            raise ParameterError(
-                f"n: {self.model.n} particles need about {need / 2**30:.3g} GiB with backend "
-                f"{self.backend!r}, more than the {available / 2**30:.3g} GiB available")
+        check_host(self.model, need, available_memory() if available is None else available, self.backend)
+        if self.backend == "cuda":
+            check_device([self.model], self.precision, free=device_free)
 
     def backend_options(self) -> dict[str, Any]:
         """Keyword arguments of the backend beyond the model (only what differs from defaults)."""
