@@ -267,7 +267,8 @@ def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, d
         require_netcdf()
     out = out or default_output_folder()
     check_output_folder(out, force)
-    state = cfg.initial_state()
+    # "random" and "aligned" as kinds: the cuda backend draws them on the device
+    state = cfg.init if cfg.init in ("random", "aligned") else cfg.initial_state()
     from ..simulation import Simulation
 
     sim = Simulation(cfg.model, state, backend=cfg.backend, history=False, **cfg.backend_options())
