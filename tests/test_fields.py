@@ -167,7 +167,7 @@ def test_cli_run_resume_and_animate(tmp_path):
     result = runner.invoke(main, ["run", "--resume", str(out), "--steps", "20", "--quiet"])
     assert result.exit_code == 0, result.output
     assert open_fields(out / "fields.nc")["step"].values.tolist() == [0, 4, 8, 12, 16, 20]
-    result = runner.invoke(main, ["animate", str(out), "--fields", "-o", str(tmp_path / "f.png")])
+    result = runner.invoke(main, ["animate", str(out), "--from-fields", "-o", str(tmp_path / "f.png")])
     assert result.exit_code == 0, result.output
     from PIL import Image
 

@@ -69,7 +69,7 @@ def frame_index(option: str, index: int, count: int) -> int:
 @click.option("--time-label/--no-time-label", default=True, show_default=True,
               help="Step and polar order in the corner.")
 @click.option("--rotate", is_flag=True, help="Movie of a 3D run: turn the camera once around the box.")
-@click.option("--fields", "fields", is_flag=True,
+@click.option("--from-fields", "fields", is_flag=True,
               help="Draw the coarse-grained fields (RUN_DIR/fields.nc, or RUN_DIR itself a .nc file) instead of "
                    "the particles: density as brightness, the local mean heading as hue.")
 @opt.quiet("No progress bar.")
@@ -86,7 +86,7 @@ def animate(run_dir, out, quiet, first_frame, last_frame, fields, **options):
       flocking animate runs/run-0001 -o last.pdf --theme light --size column
       flocking animate runs/run-0001 -o early.png --frame 10
       flocking animate mixed --color heading --first-frame 10 --last-frame -11
-      flocking animate big --fields --out fields.mp4
+      flocking animate big --from-fields --out fields.mp4
     """
     from ..viz.movie import write_movie, write_picture
 
@@ -131,7 +131,7 @@ def animate(run_dir, out, quiet, first_frame, last_frame, fields, **options):
 
 
 def draw_fields(run_dir: str, out: str, picture: bool, quiet: bool, first_frame, options: dict) -> None:
-    """``flocking animate --fields``: a movie or one picture of the fields file."""
+    """``flocking animate --from-fields``: a movie or one picture of the fields file."""
     from ..viz.fields import write_field_movie, write_field_picture
 
     if picture:

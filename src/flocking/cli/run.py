@@ -53,7 +53,8 @@ MODEL_OPTIONS = [
 
 
 #: Defaults shown in words rather than as the value.
-SHOWN = {"vision": "pi, all around", "field": "none", "cohesion_radii": "0.2,0.5,0.8 x R"}
+SHOWN = {"vision": "pi, all around", "field": "none", "cohesion_radii": "0.2,0.5,0.8 x R", "fields": "none",
+         "fields_every": "as --every"}
 
 
 def shown_default(name: str, defaults: dict | None = None) -> str:
