@@ -241,7 +241,7 @@ def test_help_shows_every_default():
                "vision": "pi, all around", "field": "none", "boundary": "periodic",
                "theme": "dark", "dpi": "200", "fmt": "png", "color": "auto", "obstacles": "none",
                "species_b": "none, one species", "cross_coupling": "1",
-               "cohesion_radii": "0.2,0.5,0.8 x R"}
+               "cohesion_radii": "0.2,0.5,0.8 x R", "fields": "none", "fields_every": "as --every"}
     plain = flocking.Model()  # config.toml leaves out extensions that are off: their defaults are Model's
     assert plain.vision == math.pi and plain.field is None
     assert used["n"] == 2048 and used["box"] == [32.0, 32.0]  # density 2 x 32 x 32

@@ -15,8 +15,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 
 def example():
-    spec = importlib.util.spec_from_file_location("finite_size", os.path.join(HERE, "..", "examples",
-                                                                              "finite_size.py"))
+    path = os.path.join(HERE, "..", "examples", "finite_size.py")
+    spec = importlib.util.spec_from_file_location("finite_size_example", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -25,7 +25,7 @@ from .model import MODEL_KEYS, Model, dumps_toml, loads_toml
 from .state import State
 
 RUN_DEFAULTS = {"steps": 1000, "every": 10, "checkpoint_every": 1000, "init": "random", "backend": "cpu",
-                "precision": "float64"}
+                "precision": "float64", "fields": 0.0, "fields_every": 0}
 RUN_KEYS = MODEL_KEYS + tuple(RUN_DEFAULTS)
 INITS = ("random", "aligned")
 
@@ -39,6 +39,8 @@ class RunConfig:
     init: str = RUN_DEFAULTS["init"]
     backend: str = RUN_DEFAULTS["backend"]
     precision: str = RUN_DEFAULTS["precision"]
+    fields: float = RUN_DEFAULTS["fields"]  # bin size of the coarse-grained fields, 0: none
+    fields_every: int = RUN_DEFAULTS["fields_every"]  # 0: as every
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "steps", integer("steps", self.steps, 0))
@@ -60,6 +62,11 @@ class RunConfig:
                 from .backends.delaunay import qhull
 
                 qhull()  # refuses, in one line, a machine without scipy
+        object.__setattr__(self, "fields_every", integer("fields_every", self.fields_every, 0))
+        if self.fields != 0:
+            from .fields import Grid
+
+            Grid.of(self.model, self.fields)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RunConfig:
@@ -103,23 +110,26 @@ class RunConfig:
 
     def to_dict(self) -> dict[str, Any]:
         init = self.init if self.init in INITS else os.path.abspath(self.init)
+        fields = {"fields": float(self.fields), "fields_every": self.fields_every} if self.fields else {}
         return {**self.model.to_dict(), "steps": self.steps, "every": self.every,
                 "checkpoint_every": self.checkpoint_every, "init": init, "backend": self.backend,
-                "precision": self.precision}
+                "precision": self.precision, **fields}
 
     def to_toml(self) -> str:
         return "# flocking run configuration: flocking run --config THIS_FILE repeats the run\n" + dumps_toml(
             self.to_dict())
 
-    def check_memory(self, available: int | None = None) -> None:
-        """Refuse, with an estimate, a run that would not fit in the available memory: the
-        backend's, plus the trajectory writer's copy of a frame (24 bytes a particle)."""
+    def check_memory(self, available: int | None = None, device_free: int | None = None) -> None:
+        """Refuse, with an estimate and the largest N that fits, a run that would not fit in
+        the available memory: the backend's, plus the trajectory writer's copy of a frame (24
+        bytes a particle); with the cuda backend, also what the card needs against its free
+        memory (``device_free``, by default the card's: :mod:`flocking.backends.sizes`)."""
+        from .backends.sizes import check_device, check_host
+
         need = backends.get(self.backend).bytes_needed(self.model) + 24 * self.model.n
-        available = available_memory() if available is None else available
-        if available and need > 0.9 * available:
-            raise ParameterError(
-                f"n: {self.model.n} particles need about {need / 2**30:.3g} GiB with backend "
-                f"{self.backend!r}, more than the {available / 2**30:.3g} GiB available")
+        check_host(self.model, need, available_memory() if available is None else available, self.backend)
+        if self.backend == "cuda":
+            check_device([self.model], self.precision, free=device_free)
 
     def backend_options(self) -> dict[str, Any]:
         """Keyword arguments of the backend beyond the model (only what differs from defaults)."""

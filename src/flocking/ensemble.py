@@ -54,8 +54,9 @@ def groups(models: Sequence[Model]) -> list[list[int]]:
 class Ensemble:
     """``R`` replicas (one per model) advanced together.
 
-    ``states`` default to :meth:`State.random` of each model and must all be at the same
-    step; ``memories`` are what :meth:`memory` returned (the delay history), one per
+    ``states`` default to :meth:`State.random` of each model (drawn on the device with
+    ``backend="cuda"``; ``"random"`` or ``"aligned"`` for every replica asks for those) and
+    must all be at the same step; ``memories`` are what :meth:`memory` returned (the delay history), one per
     replica or ``None``. ``precision="float32"`` needs ``backend="cuda"``.
     """
 
@@ -63,7 +64,9 @@ class Ensemble:
                  precision: str = "float64", memories: Sequence[dict | None] | None = None):
         models = list(models)
         check_models(models)
-        states = [State.random(m) for m in models] if states is None else list(states)
+        if states is None:  # on the device where the replicas run there
+            states = ["random"] * len(models) if backend == "cuda" else [State.random(m) for m in models]
+        states = list(states)
         if memories is not None and len(memories) != len(models):
             raise ParameterError(f"memories: one per model ({len(models)}; got {len(memories)})")
         if precision != "float64" and backend != "cuda":
@@ -71,12 +74,12 @@ class Ensemble:
         self.models = tuple(models)
         self.backend = backend
         self.precision = precision
-        self.origin = states[0].step if states else 0
+        self.origin = states[0].step if states and isinstance(states[0], State) else 0
         self._states: list[State] | None = None
-        self._last = np.array([s.polar_order() for s in states])  # each replica's latest polar order
         if backend == "cuda":
             self._engine = Engine(models, states, memories, precision=precision)
             self._singles = None
+            self._last = self._engine.polar_order_now()  # each replica's latest polar order
         else:
             cls = backends.get(backend)
             if len(states) != len(models):
@@ -85,7 +88,9 @@ class Ensemble:
                 raise ParameterError("states: replicas advance together, so they must all be at the same step")
             memories = memories or [None] * len(models)
             self._engine = None
+            states = [getattr(State, s)(m) if isinstance(s, str) else s for m, s in zip(models, states)]
             self._singles = [cls(m, s, memory=mem) for m, s, mem in zip(models, states, memories)]
+            self._last = np.array([s.polar_order() for s in states])
 
     @property
     def replicas(self) -> int:
@@ -226,6 +231,14 @@ class Replica:
     def frame_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Centred positions and velocities, float32 ``(N, 3)`` in id order (a GSD frame's)."""
         return frame_arrays(self.state, self.model.box)
+
+    def fields(self, grid) -> np.ndarray:
+        """This replica's field sums (``backend.fields``; on cuda binned on the device, all
+        replicas in one launch)."""
+        ens = self.ensemble
+        if ens._engine is not None:
+            return ens._engine.fields(grid)[self.index]
+        return ens._singles[self.index].fields(grid)
 
     def parameters(self) -> dict[str, Any]:
         options = {"precision": self.ensemble.precision} if self.ensemble.backend == "cuda" else {}

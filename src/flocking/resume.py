@@ -17,13 +17,18 @@ from .files import write_text
 
 
 def rewind(folder: str, step: int, origin: int, every: int) -> None:
-    """Trim ``trajectory.gsd`` and ``observables.csv`` of ``folder`` to ``step``."""
+    """Trim ``trajectory.gsd``, ``observables.csv`` and ``fields.nc`` of ``folder`` to ``step``."""
     trajectory = os.path.join(folder, "trajectory.gsd")
     if os.path.exists(trajectory):
         rewind_trajectory(trajectory, step, origin, every)
     observables = os.path.join(folder, "observables.csv")
     if os.path.exists(observables):
         rewind_observables(observables, step)
+    fields = os.path.join(folder, "fields.nc")
+    if os.path.exists(fields):
+        from .fields import rewind as rewind_fields
+
+        rewind_fields(fields, step)
 
 
 def _on_grid(s: int, origin: int, every: int) -> bool:

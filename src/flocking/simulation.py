@@ -37,7 +37,8 @@ class NonFiniteError(RuntimeError):
 class Simulation:
     """Runs a :class:`Model` from a :class:`State` on a backend.
 
-    ``state`` defaults to :meth:`State.random`. ``writers`` is a plain list of
+    ``state`` defaults to :meth:`State.random`; ``"random"`` or ``"aligned"`` asks for that
+    state, which the ``cuda`` backend draws on the device (:func:`initial_state`). ``writers`` is a plain list of
     :class:`~flocking.writers.Writer` objects. ``polar_order`` holds the polar order of
     every step taken by this object (the initial state first), 8 bytes a step; with
     ``history=False`` it holds only the latest value, for runs of any length. ``origin`` is the step the
@@ -64,19 +65,16 @@ class Simulation:
                  memory: dict[str, np.ndarray] | None = None, origin: int | None = None,
                  history: bool = True, **options: Any):
         self.model = model
-        state = State.random(model) if state is None else state
-        if state.n != model.n or state.dim != model.dim:
-            raise ValueError("state: its particle count or dimension differs from the model's")
-        bad = np.count_nonzero(~np.isfinite(state.positions).all(axis=1) | ~np.isfinite(state.headings).all(axis=1))
-        if bad:
-            raise ParameterError(f"state: positions and headings must be finite ({bad} particles have NaN or "
-                                 "infinite ones)")
+        state = initial_state(model, state, backend)
+        if isinstance(state, State):
+            check_state(model, state)
         self.backend = backends.get(backend)(model, state, memory=memory, **options)
         self.backend_options = options
         self.writers: list = []
-        self.polar_order = array.array("d", [state.polar_order()])
+        first = state.polar_order() if isinstance(state, State) else self.backend.polar_order_now()
+        self.polar_order = array.array("d", [first])
         self.history = history
-        self.origin = state.step if origin is None else int(origin)
+        self.origin = (state.step if isinstance(state, State) else 0) if origin is None else int(origin)
         self.info: dict[str, Any] = {}
         self._stop = False
         self._extra_names = extra_names(model)
@@ -199,6 +197,32 @@ class Simulation:
                   history=history, **params.get("backend_options", {}))
         sim.info = {k: v for k, v in params.items() if k not in ("model", "backend", "backend_options")}
         return sim
+
+
+def initial_state(model: Model, state, backend: str):
+    """The state a simulation starts from: ``state`` as given, :meth:`State.random` for
+    ``None``, and for ``"random"`` or ``"aligned"`` the kind itself where the backend draws
+    states where it runs (``cuda``: no array of N on the host), else that state drawn here."""
+    if state is None:
+        state = "random"
+    if not isinstance(state, str):
+        return state
+    if state not in ("random", "aligned"):
+        raise ParameterError(f"state: must be a State, 'random' or 'aligned' (got {state!r})")
+    if getattr(backends.get(backend), "draws_states", False):
+        return state
+    return getattr(State, state)(model)
+
+
+def check_state(model: Model, state: State) -> None:
+    """Refuse a state of another size or dimension than the model's, or with NaN or
+    infinite positions or headings."""
+    if state.n != model.n or state.dim != model.dim:
+        raise ValueError("state: its particle count or dimension differs from the model's")
+    bad = np.count_nonzero(~np.isfinite(state.positions).all(axis=1) | ~np.isfinite(state.headings).all(axis=1))
+    if bad:
+        raise ParameterError(f"state: positions and headings must be finite ({bad} particles have NaN or "
+                             "infinite ones)")
 
 
 def next_due(writer, step: int, origin: int, last: int) -> int:

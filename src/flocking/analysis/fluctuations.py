@@ -30,6 +30,7 @@ from ..model import ParameterError
 from ..space import Space
 from . import snapshots
 from .base import Analysis, fit_line, format_value, legend, log_ticks, result
+from .fieldinput import FieldCounts, is_fields
 
 
 def default_sizes(box: np.ndarray, n: int, count: int = 24) -> np.ndarray:
@@ -135,18 +136,12 @@ class NumberFluctuations(Analysis):
     num_frames = result("num_frames", "Number of frames averaged.")
 
     def compute(self, system) -> NumberFluctuations:
-        frames = snapshots.select(snapshots.as_frames(system), self.start, self.frames)
-        first = frames[0]
-        sizes = self.sizes_requested if self.sizes_requested is not None else default_sizes(first.box, first.n)
-        boxes = [SubBoxes(first.space, s) for s in sizes]
-        if any(b.shape is None for b in boxes):
-            raise ParameterError(f"sizes: every side must fit in the box {first.box.tolist()} (got {sizes.tolist()})")
-        per_frame = []
-        for f in frames:
-            if f.dim != first.dim or np.any(f.box != first.box):
-                raise ParameterError("system: every frame must have the same box")
-            per_frame.append(np.array([b.moments(f.positions) for b in boxes]))
-        per_frame = np.array(per_frame)  # (frames, sizes, 5)
+        """``system``: frames of particles, or coarse-grained fields (a fields file or
+        dataset, :mod:`flocking.fields`), whose sub-boxes are then whole bins."""
+        if is_fields(system):
+            space, sizes, boxes, per_frame = self._from_fields(FieldCounts(system).window(self.start, self.frames))
+        else:
+            space, sizes, boxes, per_frame = self._from_frames(system)
         stats = np.array([_stats(m) for m in per_frame.sum(axis=0)])
         mean, std, sigma = stats.T
         fitted = (std > 0) & np.isfinite(sigma) & (mean > 0)
@@ -165,10 +160,47 @@ class NumberFluctuations(Analysis):
             slopes = np.array(slopes)
             g = len(groups)
             error = max(error, float(np.sqrt((g - 1) / g * np.sum((slopes - slopes.mean()) ** 2))))
-        notes = fluctuation_notes(first.space, boxes, fitted, alpha)
+        notes = fluctuation_notes(space, boxes, fitted, alpha)
         self._store(sizes=np.asarray(sizes, float), mean=mean, std=std, log_error=sigma, fitted=fitted,
                     alpha=alpha, alpha_error=error, intercept=intercept, num_frames=nf, notes=notes)
         return self
+
+    def _from_frames(self, system):
+        """``(space, sizes, boxes, moments (frames, sizes, 5))`` of particle frames."""
+        frames = snapshots.select(snapshots.as_frames(system), self.start, self.frames)
+        first = frames[0]
+        sizes = self.sizes_requested if self.sizes_requested is not None else default_sizes(first.box, first.n)
+        boxes = self._boxes(first.space, sizes)
+        per_frame = []
+        for f in frames:
+            if f.dim != first.dim or np.any(f.box != first.box):
+                raise ParameterError("system: every frame must have the same box")
+            per_frame.append(np.array([b.moments(f.positions) for b in boxes]))
+        return first.space, sizes, boxes, np.array(per_frame)
+
+    def _from_fields(self, fields: FieldCounts):
+        """The same from the counts of a fields file: sub-boxes of ``k x k`` bins (default
+        ``k`` log-spaced from 1 to an eighth of the grid's shortest side)."""
+        sizes = self.sizes_requested
+        if sizes is None:
+            widest = max(1, min(fields.counts.shape[1:]) // 8)
+            ks = np.unique(np.round(np.geomspace(1, widest, 24)).astype(int))
+            sizes = ks * float(np.min(fields.widths))
+        boxes = self._boxes(fields.space, sizes)
+        per_frame = np.zeros((len(fields.counts), len(sizes), 5))
+        for j, (side, b) in enumerate(zip(sizes, boxes)):
+            counts = fields.block_counts(fields.bins_per_side(side))[:, b.keep]
+            per_frame[:, j] = np.stack([np.full(len(counts), counts.shape[1])]
+                                       + [(counts**p).sum(axis=1) for p in range(1, 5)], axis=1)
+        return fields.space, sizes, boxes, per_frame
+
+    @staticmethod
+    def _boxes(space, sizes) -> list[SubBoxes]:
+        boxes = [SubBoxes(space, s) for s in sizes]
+        if any(b.shape is None for b in boxes):
+            raise ParameterError(f"sizes: every side must fit in the box {list(space.lengths)} "
+                                 f"(got {np.asarray(sizes).tolist()})")
+        return boxes
 
     @staticmethod
     def _fit(mean, std, sigma, mask):

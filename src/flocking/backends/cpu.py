@@ -250,6 +250,13 @@ class CPUBackend:
         frames.write_frame(self._pos, self._head, self._spd, self._ids, self._box, points, velocities)
         return points, velocities
 
+    def fields(self, grid) -> np.ndarray:
+        """The sums ``(species, channel, bin)`` of :class:`flocking.fields.Grid` ``grid``: one
+        compiled pass over the slots (:mod:`flocking.backends.field_kernels`), no copy."""
+        from .field_kernels import cpu_fields
+
+        return cpu_fields(grid, self._pos, self._head, self._ids)
+
     def advance(self, steps: int) -> np.ndarray:
         """Take ``steps`` steps; return the polar order after each (and keep the moment
         sums of each step in :attr:`moments`)."""

@@ -54,6 +54,7 @@ from ..state import State, frame_arrays
 from .cells import cell_grid
 from .cuda_sort import Launch, radix_launches
 from .features import features, ring_width, tables
+from .sizes import check_device
 
 PRECISIONS = ("float64", "float32")
 
@@ -169,16 +170,16 @@ class Engine:
                  graphs: bool = True):
         if precision not in PRECISIONS:
             raise ParameterError(f"precision: must be 'float64' or 'float32' (got {precision!r})")
-        models, states = list(models), list(states)
+        models = list(models)
         check_models(models)
-        if len(states) != len(models):
-            raise ParameterError(f"states: one per model ({len(models)}; got {len(states)})")
+        check_device(models, precision)  # before any state is drawn on the host
+        states, kinds = device_states(models, states)
         model = models[0]
         n, d, r = model.n, model.dim, len(models)
         for s in states:
             if s.n != n or s.dim != d:
                 raise ParameterError(f"states: each must hold {n} particles in {d}D, as the models")
-        if len({s.step for s in states}) != 1:
+        if len({s.step for s in states}) > 1:
             raise ParameterError("states: replicas advance together, so they must all be at the same step")
         check_supported(models)
         if r * n >= 2**31:
@@ -206,10 +207,12 @@ class Engine:
         self._width = kernels.width
         self._rows = max(1, min(1024, 2**22 // max(1, r * d)))
         per_particle = any(s.n and not np.all(s.speeds == s.speeds[0]) for s in states)
+        step = states[0].step if states else 0
         self._cells = cells = int(np.prod(cell_grid(model)))
         self._P = cuda.to_device(geometry_record(model, real, replicas=r, rows=self._rows, speeds=per_particle))
         # a constant speed is the state's (a species may set it apart from model.speed)
-        self._speed = [real(s.speeds[0] if s.n else x.speed) for x, s in zip(models, states)]
+        self._speed = [real(x.species_values("speed")[0]) for x in models] if kinds else [
+            real(s.speeds[0] if s.n else x.speed) for x, s in zip(models, states)]
         rp = np.zeros(r, dtype=cuda_kernels.replica_dtype(real))
         for i, (x, v) in enumerate(zip(models, self._speed)):
             rp[i] = (x.seed, x.delay, x.noise, x.alignment, v)
@@ -231,7 +234,7 @@ class Engine:
         self._partial = dev((self._width, r * self._qb), np.float64)
         self._phi = cuda.to_device(np.zeros((r, self._rows, self._width)))
         self.moments = np.zeros((r, 0, self._width))
-        self._clock = cuda.to_device(np.array([states[0].step, 1], dtype=np.int64))
+        self._clock = cuda.to_device(np.array([step, 1], dtype=np.int64))
         sort = kernels.sort
         self._hist = cuda.to_device(np.zeros(sort.max_passes * sort.digits_per_pass, dtype=np.int32))
         self._tile_counter = cuda.to_device(np.zeros(sort.max_passes, dtype=np.int32))
@@ -241,10 +244,13 @@ class Engine:
         width = ring_width(d, self._features)
         self._ring = cuda.to_device(np.zeros((max(self._taus), m, width) if max(self._taus) else (1, 1, width),
                                              dtype=real))
-        self._step_count = states[0].step
+        self._step_count = step
         self._graphs = graphs and not simulated
         self._graph = None
-        self._load(states, memories or [None] * r)
+        if kinds:
+            self._draw(kinds)
+        else:
+            self._load(states, memories or [None] * r)
 
     # -- device plumbing -------------------------------------------------------------
 
@@ -268,6 +274,36 @@ class Engine:
         self._sort(tick=False)
         if max(self._taus):
             self._load_ring(memories)
+
+    def _draw(self, kinds: list[str]) -> None:
+        """Draw the states of ``kinds`` on the device into the ``new_*`` buffers
+        (:mod:`flocking.backends.cuda_init`), then sort them in: no array of N on the host."""
+        from . import cuda_init
+
+        cuda, m = self._cuda, self.replicas * self.n
+        draw, _ = cuda_init.build(self.precision, self.dim)
+        seeds = cuda.to_device(np.array([x.seed for x in self.models], dtype=np.uint64))
+        box = np.ones(3)
+        box[: self.dim] = self.models[0].box
+        fold = cuda.to_device(cuda_init.fold_lengths(self.models[0], self._real))
+        draw[max(1, -(-m // self._block)), self._block](self._new.pos, self._new.head, self._new.ids, seeds,
+                                                         cuda.to_device(box), fold, self.n, kinds[0] == "aligned")
+        self._k.cells[self.replicas * self._qb, self._block](self._new.pos, self._P, self._rec)
+        self._sort(tick=False)
+        if max(self._taus):
+            self._load_ring([None] * self.replicas)
+
+    def polar_order_now(self) -> np.ndarray:
+        """Each replica's polar order of the state on the device, ``(R,)``, from the moment
+        sums the last sort left per block, added in a fixed order on the device."""
+        from . import cuda_init
+
+        _, reduce = cuda_init.build(self.precision, self.dim)
+        out = self._cuda.device_array((self.replicas, self._width), np.float64)
+        reduce[self.replicas, max(32, self._width)](self._partial, self._qb, out)
+        sums = out.copy_to_host()[:, : self.dim * self._species].reshape(self.replicas, self._species, self.dim)
+        total = sums.sum(axis=1)
+        return np.sqrt(np.sum(total * total, axis=1)) / max(self.n, 1)
 
     def _load_ring(self, memories: Sequence[dict | None]) -> None:
         """The delay ring: from each replica's memory, or primed with today's sums."""
@@ -386,6 +422,21 @@ class Engine:
             done += chunk
         return out
 
+    def fields(self, grid) -> np.ndarray:
+        """Every replica's sums ``(R, species, channel, bin)`` of :class:`flocking.fields.Grid`
+        ``grid``, binned on the device from the live arrays: only the sums come back."""
+        from . import field_kernels
+
+        cuda = self._cuda
+        inv, shape = field_kernels.geometry(grid)
+        out = cuda.to_device(np.zeros((self.replicas, grid.species, grid.width, grid.bins)))
+        kernel = field_kernels.build("cuda", grid.dim, grid.species, grid.nematic)
+        m = self.replicas * self.n
+        bounds = cuda.to_device(np.asarray(grid.bounds, dtype=np.int64))
+        kernel[max(1, -(-m // self._block)), self._block](self._cur.pos, self._cur.head, self._cur.ids, bounds,
+                                                          cuda.to_device(inv), cuda.to_device(shape), self.n, out)
+        return out.copy_to_host()
+
     def states(self) -> list[State]:
         """Copies in particle-id order, float64 (float32 headings renormalised)."""
         n, d = self.n, self.dim
@@ -425,6 +476,25 @@ class Engine:
                 continue
             out.append({"ring": ring[:tau, r * n:(r + 1) * n].copy()})
         return out
+
+
+def device_states(models: Sequence[Model], states: Sequence) -> tuple[list[State], list[str]]:
+    """``(states, kinds)``: the replicas' states as given, or, where every entry is a kind
+    of :data:`flocking.backends.cuda_init.KINDS` that the device can draw
+    (:func:`~flocking.backends.cuda_init.drawable`), no states and those kinds; kinds the
+    device cannot draw are drawn on the host."""
+    from .cuda_init import KINDS, drawable
+
+    states = list(states)
+    if len(states) != len(models):
+        raise ParameterError(f"states: one per model ({len(models)}; got {len(states)})")
+    for s in states:
+        if isinstance(s, str) and s not in KINDS:
+            raise ParameterError(f"state: must be a State or one of {', '.join(map(repr, KINDS))} (got {s!r})")
+    if states and all(isinstance(s, str) for s in states) and all(map(drawable, models)) \
+            and len(set(states)) == 1:
+        return [], states
+    return [getattr(State, s)(m) if isinstance(s, str) else s for m, s in zip(models, states)], []
 
 
 def radix_sort(records: np.ndarray, key_bits: int = 31, launch: Launch | None = None) -> np.ndarray:
@@ -543,6 +613,8 @@ class CUDABackend:
     from the host (see :class:`Engine`)."""
 
     name = "cuda"
+    #: ``state`` may be ``"random"`` or ``"aligned"``: drawn on the device (:meth:`Engine._draw`)
+    draws_states = True
 
     @staticmethod
     def bytes_needed(model: Model) -> int:
@@ -561,6 +633,10 @@ class CUDABackend:
     def step(self) -> int:
         return self._engine.step
 
+    def polar_order_now(self) -> float:
+        """The polar order of the state on the device (no copy of it)."""
+        return float(self._engine.polar_order_now()[0])
+
     @property
     def state(self) -> State:
         """A copy in particle-id order, float64 (float32 headings renormalised)."""
@@ -573,6 +649,10 @@ class CUDABackend:
     def frame_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Centred positions and velocities, float32 ``(N, 3)`` in id order (a GSD frame's)."""
         return frame_arrays(self.state, self.model.box)
+
+    def fields(self, grid) -> np.ndarray:
+        """The sums ``(species, channel, bin)`` of ``grid``, binned on the device (:meth:`Engine.fields`)."""
+        return self._engine.fields(grid)[0]
 
     @property
     def moments(self) -> np.ndarray:

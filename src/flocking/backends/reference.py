@@ -260,6 +260,12 @@ class ReferenceBackend:
             past = [State(p, h, state.speeds) for p, h in zip(memory["positions"], memory["headings"])]
         self._history = collections.deque(past, maxlen=max(model.delay, 1))
 
+    def fields(self, grid) -> np.ndarray:
+        """The sums ``(species, channel, bin)`` of :class:`flocking.fields.Grid` ``grid``, in NumPy."""
+        from ..fields import bin_sums
+
+        return bin_sums(grid, self._state)
+
     def memory(self) -> dict[str, np.ndarray]:
         """What the backend remembers beyond the state: the last ``delay`` states."""
         if not self.model.delay:

@@ -69,8 +69,11 @@ def frame_index(option: str, index: int, count: int) -> int:
 @click.option("--time-label/--no-time-label", default=True, show_default=True,
               help="Step and polar order in the corner.")
 @click.option("--rotate", is_flag=True, help="Movie of a 3D run: turn the camera once around the box.")
+@click.option("--from-fields", "fields", is_flag=True,
+              help="Draw the coarse-grained fields (RUN_DIR/fields.nc, or RUN_DIR itself a .nc file) instead of "
+                   "the particles: density as brightness, the local mean heading as hue.")
 @opt.quiet("No progress bar.")
-def animate(run_dir, out, quiet, first_frame, last_frame, **options):
+def animate(run_dir, out, quiet, first_frame, last_frame, fields, **options):
     """Write a movie of RUN_DIR (a run folder or a .gsd file), streaming its frames, or
     draw one of its frames as a picture when --out ends in .png, .svg or .pdf.
 
@@ -83,6 +86,7 @@ def animate(run_dir, out, quiet, first_frame, last_frame, **options):
       flocking animate runs/run-0001 -o last.pdf --theme light --size column
       flocking animate runs/run-0001 -o early.png --frame 10
       flocking animate mixed --color heading --first-frame 10 --last-frame -11
+      flocking animate big --from-fields --out fields.mp4
     """
     from ..viz.movie import write_movie, write_picture
 
@@ -105,6 +109,8 @@ def animate(run_dir, out, quiet, first_frame, last_frame, **options):
     for name in wrong:
         options.pop(name)
     opt.check_file("out", out)
+    if fields or run_dir.endswith(".nc"):
+        return draw_fields(run_dir, out, picture, quiet, first_frame, options)
     count = frame_count(run_dir)
     if picture:
         options["frame"] = frame_index("frame", -1 if options["frame"] is None else options["frame"], count)
@@ -120,5 +126,22 @@ def animate(run_dir, out, quiet, first_frame, last_frame, **options):
         options["stride"] = 1 if options["stride"] is None else options["stride"]
         options["dpi"] = 120.0 if options["dpi"] is None else options["dpi"]
         path = write_movie(run_dir, out, progress=not quiet, start=first, stop=last + 1, **options)
+    if not quiet:
+        click.echo(f"flocking: wrote {path}", err=True)
+
+
+def draw_fields(run_dir: str, out: str, picture: bool, quiet: bool, first_frame, options: dict) -> None:
+    """``flocking animate --from-fields``: a movie or one picture of the fields file."""
+    from ..viz.fields import write_field_movie, write_field_picture
+
+    if picture:
+        frame = -1 if options["frame"] is None else options["frame"]
+        path = write_field_picture(run_dir, out, frame=frame, theme=options["theme"], dpi=options["dpi"])
+    else:
+        last = options["last_frame"]
+        path = write_field_movie(run_dir, out, theme=options["theme"], fps=options["fps"] or 20.0,
+                                 dpi=options["dpi"] or 120.0, start=first_frame,
+                                 stop=None if last is None or last == -1 else last + 1,
+                                 stride=options["stride"] or 1, progress=not quiet)
     if not quiet:
         click.echo(f"flocking: wrote {path}", err=True)

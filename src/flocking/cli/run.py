@@ -53,7 +53,8 @@ MODEL_OPTIONS = [
 
 
 #: Defaults shown in words rather than as the value.
-SHOWN = {"vision": "pi, all around", "field": "none", "cohesion_radii": "0.2,0.5,0.8 x R"}
+SHOWN = {"vision": "pi, all around", "field": "none", "cohesion_radii": "0.2,0.5,0.8 x R", "fields": "none",
+         "fields_every": "as --every"}
 
 
 def shown_default(name: str, defaults: dict | None = None) -> str:
@@ -101,7 +102,7 @@ def model_options(func=None, *, defaults: dict | None = None):
 #: What a run folder holds that flocking writes: the run's files, the pictures and movie
 #: of ``flocking run`` and ``flocking animate``, and ``flocking analyze``'s default outputs.
 #: ``--force`` removes these (and their temporaries) and nothing else.
-RUN_FILES = ("trajectory.gsd", "observables.csv", "config.toml", "checkpoint.npz", "movie.mp4", "analysis.json",
+RUN_FILES = ("trajectory.gsd", "fields.nc", "observables.csv", "config.toml", "checkpoint.npz", "movie.mp4", "analysis.json",
              *(f"{stem}.{ext}" for stem in ("snapshot", "polar_order") for ext in opt.FORMATS))
 
 #: Choices about what a run leaves besides its data, with their defaults; a resumed run
@@ -199,6 +200,11 @@ gives every parameter's meaning and range."""
               help=with_default("A frame every K steps; 0 keeps only the first and the last.", "--every"))
 @click.option("--checkpoint-every", type=click.INT, default=None,
               help=with_default("A checkpoint every K steps (0: only at the end or on a stop).", "--checkpoint-every"))
+@click.option("--fields", type=click.FLOAT, default=None, metavar="BIN",
+              help="Coarse-grained fields (count, polarisation) on bins of about this size into fields.nc "
+                   "(docs/fields.md).  [default: none]")
+@click.option("--fields-every", type=click.INT, default=None, metavar="K",
+              help="Fields every K steps.  [default: as --every]")
 @click.option("--init", default=None,
               help=with_default("random, aligned, or a GSD file whose last frame starts the run.", "--init"))
 @opt.backend("cpu (numba, multi-threaded), reference (NumPy, slow, the oracle) or cuda (an NVIDIA GPU).")
@@ -256,9 +262,14 @@ def run(config_file, resume_dir, out, force, quiet, plots, movie, show, theme, d
     except ParameterError as err:
         raise ParameterError(from_option(str(err), layer)) from None
     cfg.check_memory()
+    if cfg.fields:
+        from ..fields import require_netcdf
+
+        require_netcdf()
     out = out or default_output_folder()
     check_output_folder(out, force)
-    state = cfg.initial_state()
+    # "random" and "aligned" as kinds: the cuda backend draws them on the device
+    state = cfg.init if cfg.init in ("random", "aligned") else cfg.initial_state()
     from ..simulation import Simulation
 
     sim = Simulation(cfg.model, state, backend=cfg.backend, history=False, **cfg.backend_options())
@@ -401,6 +412,11 @@ def execute(cfg: RunConfig, sim, out: str, quiet: bool, append: bool = False, sh
     write_text(os.path.join(out, "config.toml"), cfg.to_toml())
     sim.writers.append(GSDWriter(os.path.join(out, "trajectory.gsd"), every=cfg.every, mode=mode))
     sim.writers.append(ObservablesWriter(os.path.join(out, "observables.csv"), mode=mode))
+    if cfg.fields:
+        from ..fields import FILENAME, FieldsWriter
+
+        sim.writers.append(FieldsWriter(os.path.join(out, FILENAME), cfg.fields, every=cfg.fields_every or cfg.every,
+                                        mode=mode))
     sim.writers.append(CheckpointWriter(os.path.join(out, "checkpoint.npz"), every=cfg.checkpoint_every))
     if show:
         from ..viz.live import LiveView

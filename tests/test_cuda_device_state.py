@@ -1,0 +1,204 @@
+"""Under numba's CUDA simulator: fields binned on the device, states drawn on the device
+(bit for bit the host's), host allocations of a run from a device-made state; and the
+size check with a mocked free-memory value (no device needed)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+from click.testing import CliRunner
+
+import flocking
+import flocking.config
+from flocking.backends import sizes
+from flocking.checks import ParameterError
+from flocking.config import RunConfig
+from flocking.cli import main
+
+TESTS = os.path.dirname(os.path.abspath(__file__))
+SRC = os.path.join(os.path.dirname(TESTS), "src")
+
+HARNESS = r"""
+import json, sys, tracemalloc
+import numpy as np
+import flocking
+import flocking.config
+from flocking.backends.cuda import CUDABackend
+from flocking.fields import Grid, bin_sums
+
+def states():
+    out = {}
+    for precision in ("float64", "float32"):
+        for kind in ("random", "aligned"):
+            for dim, kw in ((2, dict(box=(6.0, 4.5), delay=1)), (3, dict(box=(5.0, 4.0, 3.0)))):
+                model = flocking.Model(n=50, dim=dim, seed=11, noise=0.5, **kw)
+                a = CUDABackend(model, kind, precision=precision)
+                b = CUDABackend(model, getattr(flocking.State, kind)(model), precision=precision)
+                sa, sb = a.state, b.state
+                same = bool((sa.positions == sb.positions).all() and (sa.headings == sb.headings).all())
+                first = [a.polar_order_now(), b.polar_order_now()]
+                steps = bool((a.advance(2) == b.advance(2)).all() and (a.state.headings == b.state.headings).all())
+                out[f"{kind}:{dim}:{precision}"] = dict(same=same, steps=steps, first=first)
+    model = flocking.Model(n=50, box=6.0, seed=4, noise=0.5)
+    sim = flocking.Simulation(model, "aligned", backend="cuda")
+    out["simulation"] = [sim.polar_order[0], sim.backend.name]
+    ens = flocking.Ensemble([model, model.replace(seed=9)], backend="cuda")
+    host = [flocking.State.random(m).polar_order() for m in ens.models]
+    out["ensemble"] = [float(abs(ens._last[r] - host[r])) for r in range(2)]
+    return out
+
+def fields():
+    out = {}
+    for precision in ("float64", "float32"):
+        for name, kw in (("2d", {}), ("3d", dict(dim=3, box=5.0)),
+                         ("nematic-species", dict(alignment_rule="nematic",
+                                                  species=[{"fraction": 0.4}, {"fraction": 0.6, "name": "B"}]))):
+            model = flocking.Model(**{"n": 60, "box": 6.0, "seed": 3, **kw})
+            gpu = CUDABackend(model, "random", precision=precision)
+            gpu.advance(1)
+            grid = Grid.of(model, 1.4)
+            sums = gpu.fields(grid)
+            state = gpu.state
+            oracle = bin_sums(grid, state)
+            out[f"{name}:{precision}"] = dict(
+                counts=bool((sums[:, 0] == oracle[:, 0]).all()), diff=float(np.abs(sums - oracle).max()),
+                total=float(sums[:, 0].sum()),
+                pol=float(np.abs(sums[:, 1:1 + model.dim].sum(axis=(0, 2)) - state.headings.sum(axis=0)).max()))
+    base = flocking.Model(n=40, box=5.0, seed=1)
+    ens = flocking.Ensemble([base, base.replace(seed=2)], backend="cuda")
+    grid = Grid.of(base, 1.0)
+    out["replicas"] = [bool(np.array_equal(ens.replica(r).fields(grid)[:, 0],
+                                           bin_sums(grid, ens.states[r])[:, 0])) for r in range(2)]
+    return out
+
+def allocations(n):
+    # host memory a cuda run from a device-made state allocates, leaving out the
+    # simulator's own arrays (which stand for the device's)
+    model = flocking.Model(n=n, density=1.0, seed=2)
+    tracemalloc.start(12)
+    sim = flocking.Simulation(model, "random", backend="cuda", history=False)
+    snap = tracemalloc.take_snapshot()
+    tracemalloc.stop()
+    host = snap.filter_traces([tracemalloc.Filter(False, "*numba/cuda/simulator/*", all_frames=True)])
+    traces = host.statistics("traceback")
+    return dict(total=sum(s.size for s in traces), largest=max(s.size for s in traces), phi=sim.polar_order[0])
+
+job = json.loads(sys.argv[1])
+out = {}
+if "states" in job:
+    out["states"] = states()
+if "fields" in job:
+    out["fields"] = fields()
+if "allocations" in job:
+    CUDABackend(flocking.Model(n=20, box=4.0), "random")  # kernels compiled, module globals made
+    out["allocations"] = {str(n): allocations(n) for n in job["allocations"]}
+print("RESULT" + json.dumps(out))
+"""
+
+
+def simulate(*jobs: dict) -> dict:
+    """``HARNESS`` on each job in its own subprocess under the simulator, side by side."""
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": SRC}
+    procs = [subprocess.Popen([sys.executable, "-c", HARNESS, json.dumps(job)], env=env, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for job in jobs]
+    out = {}
+    for proc in procs:
+        stdout, stderr = proc.communicate(timeout=900)
+        lines = [line for line in stdout.splitlines() if line.startswith("RESULT")]
+        assert proc.returncode == 0 and lines, stderr[-3000:]
+        out.update(json.loads(lines[-1][len("RESULT"):]))
+    return out
+
+
+@pytest.fixture(scope="module")
+def simulated():
+    return simulate({"states": True}, {"fields": True})
+
+
+@pytest.mark.parametrize("key", [f"{k}:{d}:{p}" for k in ("random", "aligned") for d in (2, 3)
+                                 for p in ("float64", "float32")])
+def test_device_made_state_is_the_hosts_bit_for_bit(simulated, key):
+    got = simulated["states"][key]
+    assert got["same"] and got["steps"]
+    assert got["first"][0] == got["first"][1]
+
+
+def test_simulation_and_ensemble_draw_on_the_device(simulated):
+    phi, name = simulated["states"]["simulation"]
+    assert name == "cuda" and abs(phi - 1.0) < 1e-12
+    assert max(simulated["states"]["ensemble"]) < 1e-14
+
+
+@pytest.mark.parametrize("key", [f"{n}:{p}" for n in ("2d", "3d", "nematic-species") for p in ("float64", "float32")])
+def test_device_fields_equal_the_oracle(simulated, key):
+    got = simulated["fields"][key]
+    assert got["counts"] and got["total"] == 60.0
+    assert got["diff"] < (1e-12 if key.endswith("float64") else 1e-5)  # float32: the state is renormalised
+    assert got["pol"] < (1e-12 if key.endswith("float64") else 1e-5)
+
+
+def test_ensemble_replicas_fields_on_the_device(simulated):
+    assert simulated["fields"]["replicas"] == [True, True]
+
+
+@pytest.mark.slow
+def test_device_made_run_allocates_no_array_of_n_on_the_host():
+    """At 4096 and 512 particles (the simulator's threads make larger N take minutes under
+    tracemalloc) the host holds a few kilobytes, the same at both sizes: none of N."""
+    got = simulate({"allocations": [512, 4096]})["allocations"]
+    small, large = got["512"], got["4096"]
+    assert large["largest"] < 4 * 4096 / 4  # below a quarter of an int32 array of N
+    assert large["total"] - small["total"] < 4 * (4096 - 512) / 8  # not growing as N
+
+
+# -- the size check ---------------------------------------------------------------------
+
+def test_bytes_per_particle_follow_the_engines_arrays():
+    model = flocking.Model(n=10**6, box=1000.0)
+    assert sizes.per_particle(model, "float64") == 2 * (2 * 2 * 8 + 4) + 16 + 1
+    assert sizes.per_particle(model, "float32") == 2 * (2 * 2 * 4 + 4) + 16 + 1
+    assert sizes.per_particle(model.replace(delay=3), "float64") == 89 + 3 * 3 * 8
+    assert sizes.per_particle(model.replace(speeds="uniform"), "float32") == 57 + 8
+    assert sizes.device_bytes([model] * 4, "float64") >= 4 * 89 * 10**6
+
+
+def test_size_check_refuses_in_one_line_naming_the_largest_n():
+    model = flocking.Model(n=10**7, box=3000.0)
+    free = 2**29
+    with pytest.raises(ParameterError) as err:
+        sizes.check_device([model], "float64", free=free)
+    text = str(err.value)
+    assert "\n" not in text and text.startswith("n: 10000000 particles (2D, float64) need")
+    fit = int(text.split("at most ")[1].split(" ")[0])
+    fit32 = int(text.split("float32: at most ")[1].rstrip(")"))
+    assert sizes.device_bytes([flocking.Model(n=fit, box=3000.0)], "float64") <= sizes.USABLE * free
+    # conservative by at most the cell starts (4 bytes a cell, cells <= N)
+    assert sizes.device_bytes([flocking.Model(n=int(fit * 1.05), box=3000.0)], "float64") > sizes.USABLE * free
+    assert fit32 > 1.4 * fit
+    sizes.check_device([flocking.Model(n=fit, box=3000.0)], "float64", free=free)  # what it names fits
+    with pytest.raises(ParameterError, match=r"^n: 8 replicas of 10000000 particles .* particles a replica fit$"):
+        sizes.check_device([model] * 8, "float32", free=8 * free)
+    sizes.check_device([model] * 10**3, "float64", free=0)  # unknown free memory: no check
+
+
+def test_cli_and_ensemble_refuse_what_the_card_cannot_hold(monkeypatch, tmp_path):
+    monkeypatch.setattr(sizes, "device_free", lambda: 4 * 2**30)
+    monkeypatch.setattr(flocking.config, "available_memory", lambda: 2**50)  # the host holds it
+    out = tmp_path / "o"
+    result = CliRunner().invoke(main, ["run", "--backend", "cuda", "--n", "100000000", "--density", "1",
+                                       "--out", str(out)])
+    assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1
+    assert "need 8.66 GiB on the GPU, more than the 4 GiB free: at most" in result.output
+    assert "(float32: at most" in result.output and not out.exists()
+    with pytest.raises(ParameterError, match="particles a replica fit"):
+        flocking.Ensemble([flocking.Model(n=10**8, density=1.0, seed=s) for s in range(3)], backend="cuda")
+
+
+def test_host_check_names_the_largest_n():
+    cfg = RunConfig.from_dict({"n": 10**6})
+    with pytest.raises(ParameterError, match=r"^n: 1000000 particles need about .* available: at most about \d+ fit$"):
+        cfg.check_memory(available=10**7)
