@@ -53,12 +53,19 @@ from numba.core.registry import CPUDispatcher
 from flocking import Model, Simulation
 from flocking.play.server import warm_kernels
 
+def dispatchers():
+    import gc
+    for obj in gc.get_objects():
+        try:
+            if isinstance(obj, CPUDispatcher) and (obj.py_func.__module__ or "").startswith("flocking"):
+                yield obj
+        except ReferenceError:  # a weak proxy whose object is gone
+            continue
+
 def signatures():
     # every numba function of flocking, the kernels compiled per feature set included
-    import gc
     return {f"{obj.py_func.__module__}.{obj.py_func.__qualname__}#{id(obj)}": len(obj.signatures)
-            for obj in gc.get_objects() if isinstance(obj, CPUDispatcher)
-            and (obj.py_func.__module__ or "").startswith("flocking")}
+            for obj in dispatchers()}
 
 cold = signatures()
 warm_kernels()
