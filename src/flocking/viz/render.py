@@ -732,7 +732,7 @@ def deviation_key(ax, dim: int, theme, fs: float, readout: int = 2):
     ax.set_axis_off()
     ax.text(0.0, 1.1, "+z" if dim == 3 else "left", ha="center", va="bottom", color=t.text, fontsize=0.75 * fs)
     full = f"{np.degrees(DEVIATION_FULL):.0f}\u00b0"
-    return _below(ax, t, fs, f"local mean heading\noff the flock's\n(grey: along it;\nrim: {full} or more)",
+    return _below(ax, t, fs, f"heading relative\nto the flock's mean\n(grey: along it;\nrim: {full} or more)",
                   -1.2, readout)
 
 
