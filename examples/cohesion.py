@@ -93,28 +93,37 @@ def main() -> None:
     print(f"{(len(NOISES) + 1) * SEEDS} runs in {time.perf_counter() - started:.0f} s")
 
     t = house.get_theme(args.theme)
-    width, _, _ = house.resolve_size(args.size)
-    fig, axes = house.figure((width, 0.42 * width + 1.0), t, 1, 3, width_ratios=[1, 1, 1.3])
+    width, _, fs = house.resolve_size(args.size)
+    fig = house.new_figure(width, 0.42 * width + 1.0, t, fs)
+    grid = fig.add_gridspec(2, 3, width_ratios=[1, 1, 1.3])
+    snapshots = [fig.add_subplot(grid[:, c]) for c in range(2)]
+    cluster_ax = fig.add_subplot(grid[0, 2])
+    order_ax = fig.add_subplot(grid[1, 2], sharex=cluster_ax)
     colours = house.palette(t)
-    for ax, noise in zip(axes[:2], SHOWN):
+    for ax, noise in zip(snapshots, SHOWN):
+        house.style_axes(ax, t)
         plot_frame(last_frame(last[noise]), ax=ax, theme=args.theme, style="arrows", arrow_scale=2.0)
         house.label_axes(ax, "x", "y")
         ax.set_title(f"$\\eta$ = {noise:g}, step {STEPS:,}", color=t.text, fontsize=house.fontsize(fig))
-    ax = axes[2]
-    for row, colour, marker, label in ((0, colours[0], "o", "largest cluster / $N$"),
-                                      (1, colours[1], "s", "polar order $\\varphi$")):
-        ax.errorbar(NOISES, [r[row][0] for r in rows], yerr=[r[row][1] for r in rows], color=colour, marker=marker,
-                    ms=4, lw=1.2, capsize=2.5, label=label)
-    ax.errorbar([0.1], [bm], yerr=[be], color=colours[2], marker="D", ms=5, lw=0, elinewidth=1.2, capsize=2.5,
-                label="largest cluster / $N$, $\\beta$ = 0")
-    house.label_axes(ax, "vectorial noise $\\eta$", "mean over steps 10,000-20,000")
-    ax.set_ylim(0.0, 1.4)  # room above the points for the legend
-    house.legend(ax, t, loc="upper right")
+    # one quantity a panel, each a share in [0, 1]; beta = 0 beside both at eta = 0.1
+    for ax, row, marker, label, plain_point in ((cluster_ax, 0, "o", "largest cluster / $N$", (bm, be)),
+                                               (order_ax, 1, "s", "polar order $\\varphi$", (qm, qe))):
+        house.style_axes(ax, t)
+        ax.errorbar(NOISES, [r[row][0] for r in rows], yerr=[r[row][1] for r in rows], color=colours[0],
+                    marker=marker, ms=4, lw=1.2, capsize=2.5, label=f"$\\beta$ = {BASE['cohesion']:g}")
+        ax.errorbar([0.1], [plain_point[0]], yerr=[plain_point[1]], color=colours[1], marker="D", ms=5, lw=0,
+                    elinewidth=1.2, capsize=2.5, label="$\\beta$ = 0")
+        house.label_axes(ax, None, label)
+        ax.set_ylim(0.0, 1.0)
+    cluster_ax.tick_params(labelbottom=False)
+    house.label_axes(order_ax, "vectorial noise $\\eta$")
+    house.legend(cluster_ax, t, loc="upper right")
     house.title(fig, "A cohesive flock holds together at low noise and dissolves at high noise",
                 f"$N$ = {BASE['n']} from a group of density {START_DENSITY:g} in a periodic box of side "
                 f"{BASE['box']:g} (box coordinates, units of $R$) · $v_0$ = {BASE['speed']:g} · cohesion "
                 f"$\\beta$ = {BASE['cohesion']:g}, $r_c, r_e, r_a$ = 0.2, 0.5, 0.8 · bars: standard error over "
-                f"{SEEDS} seeds · without cohesion ($\\beta$ = 0) the group spreads out")
+                f"{SEEDS} seeds · means over steps 10,000-20,000 · without cohesion ($\\beta$ = 0) the group "
+                "spreads out")
     house.save(fig, args.out)
 
 
