@@ -15,6 +15,7 @@ import flocking
 from flocking import Model, Simulation, State
 from flocking.backends.cpu import CPUBackend
 from flocking.backends.reference import ReferenceBackend
+from threads import results_by_threads
 
 OPTIONS = {
     "vicsek": {},
@@ -92,12 +93,7 @@ np.save(sys.argv[1], np.concatenate(out))
 
 
 def test_bitwise_identical_for_any_thread_count(tmp_path):
-    results = []
-    for threads in ("1", "2"):
-        env = dict(os.environ, NUMBA_NUM_THREADS=threads, PYTHONPATH=SRC)
-        path = tmp_path / f"t{threads}.npy"
-        subprocess.run([sys.executable, "-c", THREADS_SCRIPT, str(path)], check=True, env=env)
-        results.append(np.load(path))
+    results = results_by_threads(THREADS_SCRIPT, tmp_path)
     assert np.array_equal(results[0], results[1])
 
 

@@ -7,15 +7,11 @@ from __future__ import annotations
 
 import builtins
 import math
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import flocking
 from flocking import Model, State
 from flocking.backends import delaunay, voronoi_cells
 from flocking.backends.cpu import CPUBackend
@@ -24,8 +20,8 @@ from flocking.backends.reference_voronoi import voronoi_matrix
 from flocking.cli import main
 from flocking.config import RunConfig
 from flocking.model import ParameterError, dumps_toml, loads_toml
+from threads import results_by_threads
 
-SRC = os.path.dirname(os.path.dirname(flocking.__file__))
 
 
 def cpu_matrix(points, box, walls):
@@ -270,12 +266,7 @@ np.save(sys.argv[1], np.concatenate(out))
 
 
 def test_bitwise_identical_for_any_thread_count(tmp_path):
-    results = []
-    for threads in ("1", "2"):
-        env = dict(os.environ, NUMBA_NUM_THREADS=threads, PYTHONPATH=SRC)
-        path = tmp_path / f"t{threads}.npy"
-        subprocess.run([sys.executable, "-c", THREADS_SCRIPT, str(path)], check=True, env=env)
-        results.append(np.load(path))
+    results = results_by_threads(THREADS_SCRIPT, tmp_path)
     assert np.array_equal(results[0], results[1])
 
 
