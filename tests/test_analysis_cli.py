@@ -45,9 +45,9 @@ def test_everything_is_written(run_dir):
     res = run("analyze", run_dir, "--start", 20, "-q")
     assert res.exit_code == 0, res.output
     data = json.loads((run_dir / "analysis.json").read_text())
-    assert set(data) >= {"polar", "fluctuations", "correlation", "profile", "clusters", "boxcount", "msd", "window"}
+    assert set(data) >= {"polar", "fluctuations", "structure", "correlation", "profile", "clusters", "boxcount", "msd", "window"}
     assert data["clusters"]["radius_used"] == 1.5 and data["model"]["n"] == 800
-    for stem in ("polar_order_window", "number_fluctuations", "velocity_correlation", "density_profile",
+    for stem in ("polar_order_window", "number_fluctuations", "structure_factor", "velocity_correlation", "density_profile",
                  "cluster_sizes", "box_counting", "msd"):
         assert len(rows(run_dir / f"{stem}.csv")) > 1
         assert (run_dir / f"{stem}.png").read_bytes()[:4] == b"\x89PNG"

@@ -21,8 +21,10 @@ from .fluctuations import NumberFluctuations
 from .msd import MeanSquareDisplacement
 from .order import NematicOrder, PerSpecies, PolarOrder
 from .profile import DensityProfile
+from .structure import StructureFactor
 
 __all__ = [
     "BoxCounting", "Clusters", "DensityProfile", "MeanSquareDisplacement", "NotComputedError",
-    "NematicOrder", "NumberFluctuations", "PerSpecies", "PolarOrder", "VelocityCorrelation",
+    "NematicOrder", "NumberFluctuations", "PerSpecies", "PolarOrder", "StructureFactor",
+    "VelocityCorrelation",
 ]

@@ -19,11 +19,14 @@ from ..files import replace_atomically
 from ..model import ParameterError
 from . import options as opt
 
-QUANTITIES = ("polar", "species", "nematic", "fluctuations", "correlation", "profile", "clusters", "boxcount", "msd")
+QUANTITIES = ("polar", "species", "nematic", "fluctuations", "structure", "correlation", "profile", "clusters",
+              "boxcount", "msd")
 #: quantities measured by default only when the run records them (several species; nematic alignment)
 OPTIONAL = ("species", "nematic")
 #: quantities that read observables.csv (every step) when the run folder has one
 SERIES = ("polar", "species", "nematic")
+#: quantities that coarse-grained fields (fields.nc) give, with --from-fields
+FROM_FIELDS = ("fluctuations", "structure")
 
 #: quantity -> (file stem, figure title, CSV columns as (header, attribute)); a header
 #: ``None`` is named for the profile's axis
@@ -36,6 +39,8 @@ OUTPUTS = {
                 [("step", "steps"), ("time", "times"), ("nematic_order", "series"), ("in_window", "window")]),
     "fluctuations": ("number_fluctuations", "Number fluctuations",
                      [("side", "sizes"), ("mean_n", "mean"), ("dn", "std"), ("fitted", "fitted")]),
+    "structure": ("structure_factor", "Structure factor",
+                  [("k", "k"), ("S", "s"), ("S_error", "s_error"), ("wavevectors", "counts")]),
     "correlation": ("velocity_correlation", "Velocity correlation",
                     [("r", "r"), ("C", "correlation"), ("pairs", "pairs")]),
     "profile": ("density_profile", "Density profile, last frame", [(None, "x"), ("density", "density")]),
@@ -86,6 +91,8 @@ def build(name: str, model, start, frames, options: dict):
         return fa.NematicOrder(start=start)
     if name == "fluctuations":
         return fa.NumberFluctuations(start=start, frames=frames)
+    if name == "structure":
+        return fa.StructureFactor(k_max=options["k_max"], start=start, frames=frames)
     if name == "correlation":
         return fa.VelocityCorrelation(r_max=options["r_max"], dr=options["dr"], method=options["method"],
                                       start=start, frames=frames)
@@ -121,6 +128,12 @@ RENAMED = {"radius": "cluster_radius"}
 @click.option("--dr", type=click.FLOAT, default=None, help="Bin width of C(r).  [default: min(0.5, r_max/20)]")
 @click.option("--method", type=opt.OneOf(("auto", "cells", "grid")), default="auto", show_default=True,
               help="C(r): cells (exact, over pairs), grid (FFT), or auto.")
+@click.option("--k-max", type=click.FLOAT, default=None,
+              help="Largest wavenumber of S(k), in units of 1/R.  [default: 32 shells along the shortest side "
+                   "(12 in 3D); from fields, half the grid's Nyquist]")
+@click.option("--from-fields", is_flag=True,
+              help="Number fluctuations and S(k) from the run's fields.nc (every fields frame in the window) "
+                   "instead of the trajectory's particles.")
 @opt.out("Output folder.", "RUN_DIR")
 @opt.theme
 @opt.size
@@ -128,10 +141,10 @@ RENAMED = {"radius": "cluster_radius"}
 @opt.dpi()
 @opt.plots("A figure per quantity (without: JSON and CSV only).")
 @opt.quiet("No summary on stderr.")
-def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, method, out, theme, size, fmt, dpi,
-            plots, quiet):
-    """Measure a run: polar order, number fluctuations, velocity correlation, density
-    profile, clusters, box-counting dimension and MSD; the polar order of each species
+def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, method, k_max, from_fields, out, theme,
+            size, fmt, dpi, plots, quiet):
+    """Measure a run: polar order, number fluctuations, structure factor, velocity
+    correlation, density profile, clusters, box-counting dimension and MSD; the polar order of each species
     and the nematic order when the run has several species or nematic alignment.
 
     RUN_DIR is a folder written by `flocking run` (or a GSD file). Writes analysis.json,
@@ -142,6 +155,7 @@ def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, me
     Examples:
       flocking analyze runs/run-0001
       flocking analyze runs/run-0001 --only polar,fluctuations --start 0.5
+      flocking analyze big --only polar,fluctuations,structure --from-fields
       flocking analyze traj.gsd --frames 20 --r-max 20 --out results --theme light --format pdf
     """
     from ..analysis import snapshots
@@ -163,11 +177,15 @@ def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, me
     model = snapshots.model_of(gsd_path) if gsd_path else None
     if not asked:
         names = [name for name in names if name not in OPTIONAL or recorded(name, model, obs, gsd_path)]
-    if gsd_path is None and not (obs and set(names) <= set(SERIES)):
+    fields_path = os.path.join(folder, "fields.nc") if from_fields else None
+    if fields_path and not os.path.exists(fields_path):
+        raise ParameterError(f"from_fields: {folder!r} holds no fields.nc (flocking run --fields BIN writes it)")
+    if gsd_path is None and not (obs and set(names) <= set(SERIES) | set(FROM_FIELDS if fields_path else ())):
         raise ParameterError(f"RUN_DIR {run_dir!r}: holds no trajectory.gsd")
     out = out or folder
     opt.check_folder("out", out)
-    options = {"radius": cluster_radius, "r_max": r_max, "dr": dr, "method": method, "max_lag": max_lag}
+    options = {"radius": cluster_radius, "r_max": r_max, "dr": dr, "method": method, "max_lag": max_lag,
+               "k_max": k_max}
     for name in names:  # every option checked before anything is read or written
         try:
             build(name, model, None, frames, options)
@@ -193,6 +211,8 @@ def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, me
                     obj.compute(polar_source, n=model.n if model else None)
                 elif name in SERIES:  # observables.csv where it has the column, else the trajectory
                     obj.compute(series_source)
+                elif fields_path and name in FROM_FIELDS:
+                    obj.compute(fields_path)
                 else:
                     obj.compute(system)
             except ParameterError as err:
@@ -425,6 +445,10 @@ def summary_lines(results) -> list[str]:
         elif name == "fluctuations":
             alpha = format_value(obj.alpha, obj.alpha_error, ' ± ') if math.isfinite(obj.alpha) else "n/a (see notes)"
             lines.append(f"number fluctuations: alpha {alpha}")
+        elif name == "structure":
+            lines.append(f"structure factor: S(k) {format_value(obj.s[0], obj.s_error[0], ' ± ')} at k = "
+                         f"{obj.k[0]:.3g}, {format_value(obj.s[-1], obj.s_error[-1], ' ± ')} at k = {obj.k[-1]:.3g} "
+                         f"({len(obj.k)} shells, from {obj.source})")
         elif name == "correlation":
             lines.append(f"velocity correlation: first zero of C(r) at r = {obj.correlation_length:.4g}"
                          if math.isfinite(obj.correlation_length) else

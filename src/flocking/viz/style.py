@@ -69,6 +69,8 @@ LABELS = {
     "y": "$y$ (units of $R$)",
     "z": "$z$ (units of $R$)",
     "profile": r"density $\rho(x)$",
+    "k": r"wavenumber $k$ (units of $1/R$)",
+    "structure": "structure factor $S(k)$",
 }
 
 #: Line colours that read on both backgrounds, in the order curves take them.
