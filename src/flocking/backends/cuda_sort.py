@@ -95,6 +95,31 @@ def digits(rec, hist, m, npass, clock, tick):
         if h[e] != 0:
             cuda.atomic.add(hist, e, h[e])
 
+
+def tiles_before(status, tile, d, tag, mine):
+    """Items of digit ``d`` in the tiles before ``tile`` (decoupled look-back), once the
+    tile has published its own ``mine`` and then its inclusive prefix in ``status``.
+    A status word is ``tag << 33 | inclusive << 32 | count``, the tag (the sort and the
+    pass, never 0) telling this pass's words from older ones."""
+    slot = tile * DIGITS + d
+    before = np.int64(0)
+    if tile == 0:
+        cuda.atomic.exch(status, slot, (tag << 33) | (np.int64(1) << 32) | mine)
+        return before
+    cuda.atomic.exch(status, slot, (tag << 33) | mine)
+    j = tile - 1
+    while j >= 0:
+        w = cuda.atomic.add(status, j * DIGITS + d, 0)
+        if (w >> 33) != tag:
+            continue  # tile j has not published yet
+        before += w & 0xFFFFFFFF
+        if (w >> 32) & 1:
+            break
+        j -= 1
+    cuda.atomic.exch(status, slot, (tag << 33) | (np.int64(1) << 32) | (before + mine))
+    return before
+
+
 def scatter(src, dst, m, p, hist, status, tiles, clock):
     """Pass ``p`` of the radix sort, ``src[:m]`` into ``dst``: stable by the digit.
 
@@ -171,24 +196,8 @@ def scatter(src, dst, m, p, hist, status, tiles, clock):
     if tid < DIGITS:
         mine = np.int64(tcount[tid])
         tstart[tid] = part[tid] - mine
-        # status word: tag (sort and pass, never 0) << 33 | inclusive << 32 | count
         tag = np.int64(1 + (clock[1] * PMAX + p) % (2**30 - 1))
-        slot = tile * DIGITS + tid
-        before = np.int64(0)
-        if tile == 0:
-            cuda.atomic.exch(status, slot, (tag << 33) | (np.int64(1) << 32) | mine)
-        else:
-            cuda.atomic.exch(status, slot, (tag << 33) | mine)
-            j = tile - 1
-            while j >= 0:
-                w = cuda.atomic.add(status, j * DIGITS + tid, 0)
-                if (w >> 33) != tag:
-                    continue  # tile j has not published yet
-                before += w & 0xFFFFFFFF
-                if (w >> 32) & 1:
-                    break
-                j -= 1
-            cuda.atomic.exch(status, slot, (tag << 33) | (np.int64(1) << 32) | (before + mine))
+        before = tiles_before(status, tile, tid, tag, mine)
         base[tid] = np.int64(more[tid]) - hist[p * DIGITS + tid] + before
     cuda.syncthreads()
     for q in range(ITEMS):
@@ -225,7 +234,7 @@ def build(launch: Launch) -> types.SimpleNamespace:
     namespace = {**globals(), "BLOCK": BLOCK, "BITS": BITS, "ITEMS": ITEMS, "DIGITS": DIGITS, "SUB": SUB,
                  "SUBD": SUBD, "TILE": TILE, "PMAX": PMAX, "HSIZE": HSIZE, "CSIZE": CSIZE, "MASK": MASK,
                  "SUBMASK": SUBMASK, "CTYPE": CTYPE, "_KEY": _KEY}
-    for name in ("digit_of", "block_scan"):
+    for name in ("digit_of", "block_scan", "tiles_before"):
         namespace[name] = cuda.jit(device=True)(rebind(globals()[name], namespace))
     for name in ("digits", "scatter"):
         namespace[name] = cuda.jit(rebind(globals()[name], namespace))
