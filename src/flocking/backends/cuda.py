@@ -77,6 +77,9 @@ MAX_WIDTH = 20
 #: most replicas of one engine (blocks of one replica's reduction are a grid dimension)
 MAX_REPLICAS = 2**20
 
+#: particles copied to the host at a time by :meth:`Engine.states` (float32: 4 MiB an axis)
+COPY_CHUNK = 1 << 20
+
 
 def require_cuda():
     """numba.cuda, once it is known to have a device (or the simulator)."""
@@ -438,27 +441,27 @@ class Engine:
         return out.copy_to_host()
 
     def states(self) -> list[State]:
-        """Copies in particle-id order, float64 (float32 headings renormalised)."""
+        """Copies in particle-id order, float64 (float32 headings renormalised), each
+        brought over in pieces of :data:`COPY_CHUNK` particles straight into its place:
+        the host holds the states and one piece, never a second array of N."""
         n, d = self.n, self.dim
-        ids = self._cur.ids.copy_to_host()
-        pos_all, head_all = self._cur.pos.copy_to_host(), self._cur.head.copy_to_host()
-        spd_all = self._cur.spd.copy_to_host() if self._per_particle else None
         box = _periodic_box(self.models[0])
+        cur = self._cur
         out = []
         for r, model in enumerate(self.models):
-            lo, hi = r * n, (r + 1) * n
-            pid = ids[lo:hi]
             pos, head = np.empty((n, d)), np.empty((n, d))
-            pos[pid] = pos_all[:, lo:hi].T
-            head[pid] = head_all[:, lo:hi].T
-            if spd_all is not None:
-                spd = np.empty(n)
-                spd[pid] = spd_all[lo:hi]
-            else:
-                spd = np.broadcast_to(np.float64(self._speed[r]), (n,))
+            spd = np.empty(n) if self._per_particle else np.broadcast_to(np.float64(self._speed[r]), (n,))
+            for first in range(r * n, (r + 1) * n, COPY_CHUNK):
+                last = min(first + COPY_CHUNK, (r + 1) * n)
+                pid = cur.ids[first:last].copy_to_host()
+                for a in range(d):
+                    pos[pid, a] = cur.pos[a, first:last].copy_to_host()
+                    head[pid, a] = cur.head[a, first:last].copy_to_host()
+                if self._per_particle:
+                    spd[pid] = cur.spd[first:last].copy_to_host()
             if self.precision != "float64":
                 head /= np.linalg.norm(head, axis=1, keepdims=True)
-                pos = np.where(pos >= box, pos - box, pos)  # float32(L) may exceed L: fold back (not at a wall)
+                np.subtract(pos, box, out=pos, where=pos >= box)  # float32(L) may exceed L: fold back (not at a wall)
             out.append(State(pos, head, spd, self._step_count))
         return out
 
