@@ -53,27 +53,29 @@ def test_contrast_of_uniform_points_is_zero_on_average():
 @pytest.mark.slow
 def test_metric_bands_and_voronoi_homogeneous():
     """A 128 x 16 box (N = 4096) at eta = 0.6 from the aligned start, 2000 steps: the
-    metric model's contrast (frames every 250 steps over the second half) against the
-    Voronoi model's. The full script measures 1.2 to 1.3 (metric, 256 x 32) and about 0.1
-    (Voronoi); in this box seeds 1 to 3 gave (see the commit) metric 0.4 to 0.7 and Voronoi
-    0.02 to 0.13, the frames' spread about 0.1. The test asks for the metric contrast over
-    0.3 and the Voronoi one under 0.2, and the difference over 4 standard errors of the
-    two means combined."""
+    metric model's band contrast (4 frames, every 250 steps over the second half) against
+    the Voronoi model's. Measured with seeds 1, 2, 3: metric means 1.10, 1.11, 1.15 (frames
+    0.74 to 1.54, standard errors of the means up to 0.16); Voronoi 0.100, 0.102, 0.078
+    (frames 0.05 to 0.13, errors up to 0.018). The bounds lie 4 of those errors (metric:
+    1.1 - 4 x 0.15 = 0.5) and 8 (Voronoi: 0.1 + 8 x 0.018 = 0.25) from the means, and the
+    difference must exceed 4 standard errors of the two means combined."""
     metric, phi_m, _, _ = example.band_run("metric", (128.0, 16.0), 0.6, 2000, 250)
     voronoi, phi_v, _, _ = example.band_run("voronoi", (128.0, 16.0), 0.6, 2000, 250)
     (cm, em), (cv, ev) = example.mean_error(metric), example.mean_error(voronoi)
-    assert cm > 0.3, (metric, voronoi)
-    assert cv < 0.2, (metric, voronoi)
+    assert cm > 0.5, (metric, voronoi)
+    assert cv < 0.25, (metric, voronoi)
     assert cm - cv > 4 * math.hypot(em, ev), (metric, voronoi)
     # both ordered: the Voronoi state is a homogeneous moving flock, not a disordered gas
-    assert phi_v.mean() > 0.6 and phi_m.mean() > 0.5
+    # (polar orders measured 0.74 to 0.76, both models, all three seeds)
+    assert phi_v.mean() > 0.6 and phi_m.mean() > 0.6
 
 
 @pytest.mark.slow
 def test_voronoi_orders_at_low_noise_only():
-    """L = 16 (N = 512), 1500 steps: ordered at eta = 0.4 (the script: 0.93 +- 0.002 at
-    L = 16), disordered at eta = 0.8 (random headings give sqrt(pi / 4N) = 0.039; the
-    script: about 0.05). Tolerances are tens of the errors the script prints."""
+    """L = 16 (N = 512), 1500 steps: ordered at eta = 0.4 (measured 0.9328 +- 0.0008),
+    disordered at eta = 0.8 (measured 0.0517 +- 0.0013; random headings give
+    sqrt(pi / 4N) = 0.039). The bounds lie tens of those errors away: what is tested is
+    the transition between them, not the digits."""
     low, low_error = example.order_point("voronoi", 16.0, 0.4, 1500)
     high, high_error = example.order_point("voronoi", 16.0, 0.8, 1500)
     assert low > 0.85 and low_error < 0.02
