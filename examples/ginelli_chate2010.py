@@ -26,9 +26,10 @@ and no value of the paper is drawn.
 
     python examples/ginelli_chate2010.py --out ginelli_chate2010.png --theme light --size page
 
-Cost: about 13 min wall clock on the project's 2-core machine (the band runs 4 min, almost
-all of it the Voronoi one at about 0.08 s a step; the order curves 9 min), the kernels
-compiled.
+Cost: 18 min wall clock on the project's 2-core machine while other programs kept it busy
+(load average 8 to 14), the kernels compiled: the Voronoi band run 7 min (0.14 s a step),
+the Voronoi curves 2.5 min (L = 16) and 7.3 min (L = 32), every metric run together
+1.2 min. On a quiet machine the Voronoi band run took about 4 min.
 """
 
 from __future__ import annotations
