@@ -1,0 +1,267 @@
+"""Vicsek, Czirok, Ben-Jacob, Cohen and Shochet, PRL 75, 1226 (1995): Fig. 2a (the order
+v_a against the noise eta at density 4 for several N), Fig. 2b (v_a against the density at
+L = 20, eta = 2) and the two exponents they fitted, beta from
+v_a ~ ((eta_c(L) - eta) / eta_c(L))^beta and delta from v_a ~ rho^delta at small density.
+
+Conventions, as the paper states them: speed v0 = 0.03, radius R = 1, time step 1; every
+particle takes the mean direction of the particles within R (itself included) plus an
+angle uniform in [-eta/2, eta/2] (``noise`` in radians, angular noise: the same eta), and
+moves with the velocity it had before the update (``update = "forward"``); random positions
+and headings at t = 0; v_a = |sum of the velocities| / (N v0), our polar order. The density
+is N / L^2, so rho = 4 gives L = sqrt(N / 4).
+
+Every point runs ``--replicas`` systems (seeds) for ``--steps`` steps from a random start;
+each system's v_a is its time mean after ``--discard`` steps; a point is the mean over the
+systems, its error bar the standard error of that mean (the spread between systems). The
+exponents are fitted as the paper plots them: for beta, a straight line in
+ln v_a against ln((eta_c - eta) / eta_c) for the largest N, over the noises from
+``--beta-from`` up to the last one below the peak of the susceptibility
+chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a parameter of the
+fit (the value that makes the line straightest); for delta, a straight line
+in ln v_a against ln rho over the densities up to ``--delta-max``. Their intervals are the
+16th to 84th percentiles over ``--bootstrap`` resamplings of the systems of every point.
+
+    python examples/vicsek1995.py --out examples/vicsek1995-figures.png
+    # 466 CPU-seconds on one thread (the default --threads 1): 23.5 min of wall clock on the
+    # project's 2 shared cores at load average 7 to 17 (the job got a third of a core);
+    # N = 4000 takes three quarters of it. The figure committed.
+
+The paper's numbers beside ours: beta = 0.45 and delta = 0.35 as the paper quotes them
+(PAPER below). Its curves are not overlaid point by point: we could not read its Fig. 2
+here, so the figure draws its power laws through our data instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numba
+import numpy as np
+from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
+from scipy.optimize import least_squares
+
+from flocking import Ensemble, Model
+from flocking.viz import style as house
+
+BASE = dict(speed=0.03, radius=1.0, update="forward", noise_type="angular", noise_scale="radians")
+PAPER = {"beta": (0.45, 0.07), "delta": (0.35, 0.06)}  # the paper's text, value and its +-
+NOISES = (0.0, 0.5, 1.0, 1.5, 2.0, 2.25, 2.5, 2.75, 3.0, 3.25, 3.5, 3.75, 4.0, 4.5, 5.0)
+SIZES = (40, 100, 400, 4000)
+DENSITIES = (0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+
+
+def order(n: int, density: float, noises, replicas: int, steps: int, discard: int,
+          seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each system's time means of v_a and of v_a^2 after ``discard`` steps, two arrays
+    ``(len(noises), replicas)``: the systems of every noise (``n`` particles at
+    ``density``) advanced as one ensemble."""
+    models = [Model(n=n, density=density, noise=eta, seed=seed + 1000 * i + r, **BASE)
+              for i, eta in enumerate(noises) for r in range(replicas)]
+    ens = Ensemble(models, backend="cpu")
+    ens.advance(discard)
+    phi = ens.advance(steps - discard)
+    shape = (len(noises), replicas)
+    return phi.mean(axis=1).reshape(shape), (phi**2).mean(axis=1).reshape(shape)
+
+
+def susceptibility(n: int, m1: np.ndarray, m2: np.ndarray) -> np.ndarray:
+    """chi = N (<v_a^2> - <v_a>^2), the moments pooled over the systems of each point."""
+    return n * (m2.mean(-1) - m1.mean(-1) ** 2)
+
+
+def mean_error(per: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over systems (last axis) and the standard error of that mean."""
+    return per.mean(-1), per.std(-1, ddof=1) / np.sqrt(per.shape[-1])
+
+
+def fit_beta(noises, values, errors) -> tuple[float, float, float]:
+    """``(beta, eta_c, ln A)`` of ln v_a = ln A + beta ln((eta_c - eta) / eta_c), weighted by
+    the errors of ln v_a; eta_c is free, above the largest noise given."""
+    x, y = np.asarray(noises, float), np.log(values)
+    w = 1.0 / np.maximum(np.asarray(errors) / values, 1e-3)
+    top = x.max()
+
+    def residuals(p):
+        beta, gap, lna = p
+        eta_c = top + np.exp(gap)
+        return w * (lna + beta * np.log((eta_c - x) / eta_c) - y)
+
+    best = min((least_squares(residuals, [0.5, np.log(g), 0.0]) for g in (0.05, 0.2, 0.5, 1.0)),
+               key=lambda r: r.cost)
+    beta, gap, lna = best.x
+    return float(beta), float(top + np.exp(gap)), float(lna)
+
+
+def fit_delta(densities, values, errors) -> tuple[float, float]:
+    """``(delta, ln B)`` of ln v_a = ln B + delta ln rho, weighted by the errors of ln v_a."""
+    x, y = np.log(densities), np.log(values)
+    w = 1.0 / np.maximum(np.asarray(errors) / values, 1e-3)
+    delta, lnb = np.polyfit(x, y, 1, w=w)
+    return float(delta), float(lnb)
+
+
+def bootstrap(fit, xs, per: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """``fit``'s first value refitted to ``count`` resamplings of the systems of every point."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        pick = rng.integers(0, per.shape[1], size=per.shape)
+        sample = np.take_along_axis(per, pick, axis=1)
+        out.append(fit(xs, *mean_error(sample))[0])
+    return np.asarray(out)
+
+
+def interval(samples: np.ndarray) -> tuple[float, float]:
+    lo, hi = np.percentile(samples, [16, 84])
+    return float(lo), float(hi)
+
+
+def figure(res: dict, args, path: str) -> None:
+    """Fig. 2a, Fig. 2b and the two fits in log-log form, the paper's exponents beside ours."""
+    t = house.get_theme(args.theme)
+    width, _, fs = house.resolve_size(args.size)
+    fig = house.new_figure(width, 0.8 * width, t, fs)
+    (a, b), (c, d) = fig.subplots(2, 2)
+    for ax in (a, b, c, d):
+        house.style_axes(ax, t)
+    colours = house.palette(args.theme)
+    for k, (n, (m, e)) in enumerate(res["fig2a"].items()):
+        a.errorbar(args.noises, m, yerr=e, fmt="o-", ms=3, lw=1, capsize=2, color=colours[k % len(colours)],
+                   label=f"N = {n}")
+    house.label_axes(a, r"noise $\eta$", r"$v_a$")
+    a.set_ylim(0, 1.02)
+    a.set_title(r"Fig. 2a: $\rho$ = 4", fontsize=house.fontsize(fig))
+    house.legend(a, args.theme)
+    m, e = res["fig2b"]
+    b.errorbar(args.densities, m, yerr=e, fmt="o-", ms=3, lw=1, capsize=2, color=colours[0], label="ours")
+    house.label_axes(b, r"density $\rho$", r"$v_a$")
+    b.set_ylim(0, 1.02)
+    b.set_title(r"Fig. 2b: L = 20, $\eta$ = 2", fontsize=house.fontsize(fig))
+
+    beta, eta_c, lna = res["beta"]["fit"]
+    x = np.asarray(res["beta"]["noises"])
+    bm, be = res["beta"]["mean"], res["beta"]["error"]
+    u = (eta_c - x) / eta_c
+    c.errorbar(u, bm, yerr=be, fmt="o", ms=3, capsize=2, color=colours[0], label=f"N = {res['beta']['n']}")
+    grid = np.geomspace(u.min(), u.max(), 50)
+    c.plot(grid, np.exp(lna) * grid**beta, color=colours[0], lw=1, label=rf"fit: $\beta$ = {beta:.2f}")
+    mid = np.exp(np.mean(np.log(u)))
+    anchor = np.exp(lna) * mid**beta
+    c.plot(grid, anchor * (grid / mid) ** PAPER["beta"][0], color=colours[1], lw=1, ls="--",
+           label=rf"paper: $\beta$ = {PAPER['beta'][0]:g}")
+    c.set_xscale("log")
+    c.set_yscale("log")
+    house.label_axes(c, rf"$(\eta_c - \eta)/\eta_c$, $\eta_c$ = {eta_c:.2f}", r"$v_a$")
+    house.legend(c, args.theme, loc="upper left")
+    c.set_title(r"$\beta$: Fig. 2a's largest N below $\eta_c$", fontsize=house.fontsize(fig))
+
+    delta, lnb = res["delta"]["fit"]
+    rho = np.asarray(res["delta"]["densities"])
+    dm, de = res["delta"]["mean"], res["delta"]["error"]
+    d.errorbar(args.densities, m, yerr=e, fmt="o", ms=3, capsize=2, color=colours[0], alpha=0.35)
+    d.errorbar(rho, dm, yerr=de, fmt="o", ms=3, capsize=2, color=colours[0], label="fitted points")
+    grid = np.geomspace(rho.min(), rho.max(), 50)
+    d.plot(grid, np.exp(lnb) * grid**delta, color=colours[0], lw=1, label=rf"fit: $\delta$ = {delta:.2f}")
+    mid = np.exp(np.mean(np.log(rho)))
+    anchor = np.exp(lnb) * mid**delta
+    d.plot(grid, anchor * (grid / mid) ** PAPER["delta"][0], color=colours[1], lw=1, ls="--",
+           label=rf"paper: $\delta$ = {PAPER['delta'][0]:g}")
+    d.set_xscale("log")
+    d.set_yscale("log")
+    house.label_axes(d, r"density $\rho$", r"$v_a$")
+    house.legend(d, args.theme, loc="upper left")
+    d.set_title(r"$\delta$: Fig. 2b at small density", fontsize=house.fontsize(fig))
+    for ax in (c, d):
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_locator(LogLocator(subs=(1, 2, 3, 5)))
+            axis.set_major_formatter(FormatStrFormatter("%g"))
+            axis.set_minor_formatter(NullFormatter())
+    house.title(fig, "Vicsek et al. 1995: order against noise and density, and the exponents",
+                f"$v_0$ = 0.03 · R = 1 · forward update · noise uniform in [$-\\eta/2$, $\\eta/2$] · "
+                f"{args.replicas} systems a point, {args.steps:,} steps, first {args.discard:,} left out · "
+                "bars: standard errors · dashed: the paper's exponents drawn through our points "
+                "(its curves could not be read here)")
+    house.save(fig, path)
+
+
+def parse(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--sizes", default=",".join(map(str, SIZES)), help="N for Fig. 2a, comma-separated")
+    p.add_argument("--noises", default=",".join(map(str, NOISES)), help="eta for Fig. 2a, comma-separated")
+    p.add_argument("--densities", default=",".join(map(str, DENSITIES)), help="rho for Fig. 2b")
+    p.add_argument("--replicas", type=int, default=4)
+    p.add_argument("--steps", type=int, default=8_000)
+    p.add_argument("--discard", type=int, default=3_000)
+    p.add_argument("--beta-from", type=float, default=1.0,
+                   help="the lowest noise fitted for beta (the highest: the last below the susceptibility's peak)")
+    p.add_argument("--delta-max", type=float, default=1.0, help="the largest density fitted for delta")
+    p.add_argument("--bootstrap", type=int, default=400)
+    p.add_argument("--seed", type=int, default=1995)
+    p.add_argument("--threads", type=int, default=1,
+                   help="numba threads (1: on a shared machine small systems run faster on one)")
+    p.add_argument("--out", default="vicsek1995-figures.png")
+    p.add_argument("--theme", default="light")
+    p.add_argument("--size", default="page")
+    args = p.parse_args(argv)
+    args.sizes = [int(x) for x in args.sizes.split(",")]
+    args.noises = [float(x) for x in args.noises.split(",")]
+    args.densities = [float(x) for x in args.densities.split(",")]
+    house.check_format(args.out)
+    return args
+
+
+def main(argv=None) -> dict:
+    args = parse(argv)
+    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    started = time.perf_counter()
+    res: dict = {"fig2a": {}, "chi": {}}
+    per_size = {}
+    for n in args.sizes:
+        t0 = time.perf_counter()
+        m1, m2 = order(n, 4.0, args.noises, args.replicas, args.steps, args.discard, args.seed)
+        per_size[n] = m1
+        m, e = mean_error(m1)
+        res["fig2a"][n] = (m, e)
+        res["chi"][n] = susceptibility(n, m1, m2)
+        print(f"Fig. 2a  N = {n} (L = {np.sqrt(n / 4):.2f}), {time.perf_counter() - t0:.0f} s", flush=True)
+        for eta, mi, ei, chi in zip(args.noises, m, e, res["chi"][n]):
+            print(f"  eta {eta:<5g} v_a {mi:.3f} +- {ei:.3f}   chi {chi:.2f}")
+
+    t0 = time.perf_counter()
+    per_rho = np.concatenate([order(int(round(rho * 400)), rho, [2.0], args.replicas, args.steps, args.discard,
+                                    args.seed + 7 * k)[0] for k, rho in enumerate(args.densities)])
+    res["fig2b"] = mean_error(per_rho)
+    print(f"Fig. 2b  L = 20, eta = 2, {time.perf_counter() - t0:.0f} s", flush=True)
+    for rho, mi, ei in zip(args.densities, *res["fig2b"]):
+        print(f"  rho {rho:<5g} N {int(round(rho * 400)):<5d} v_a {mi:.3f} +- {ei:.3f}")
+
+    n = max(args.sizes)
+    peak = args.noises[int(np.argmax(res["chi"][n]))]
+    keep = [i for i, eta in enumerate(args.noises) if args.beta_from <= eta < peak]
+    noises = np.asarray(args.noises)[keep]
+    per = per_size[n][keep]
+    bm, be = mean_error(per)
+    fit = fit_beta(noises, bm, be)
+    boot = bootstrap(fit_beta, noises, per, args.bootstrap, args.seed)
+    res["beta"] = {"n": n, "noises": noises, "mean": bm, "error": be, "fit": fit, "interval": interval(boot)}
+    print(f"beta (N = {n}, eta from {args.beta_from:g} to below the susceptibility's peak at {peak:g}, "
+          f"{len(keep)} points): {fit[0]:.3f}, 68% interval [{res['beta']['interval'][0]:.3f}, "
+          f"{res['beta']['interval'][1]:.3f}], eta_c(L) = {fit[1]:.3f}; paper {PAPER['beta'][0]} +- {PAPER['beta'][1]}")
+
+    keep = [i for i, rho in enumerate(args.densities) if rho <= args.delta_max]
+    rho = np.asarray(args.densities)[keep]
+    dm, de = mean_error(per_rho[keep])
+    fit = fit_delta(rho, dm, de)
+    boot = bootstrap(fit_delta, rho, per_rho[keep], args.bootstrap, args.seed + 1)
+    res["delta"] = {"densities": rho, "mean": dm, "error": de, "fit": fit, "interval": interval(boot)}
+    print(f"delta (L = 20, eta = 2, rho <= {args.delta_max:g}, {len(keep)} points): {fit[0]:.3f}, 68% interval "
+          f"[{res['delta']['interval'][0]:.3f}, {res['delta']['interval'][1]:.3f}]; "
+          f"paper {PAPER['delta'][0]} +- {PAPER['delta'][1]}")
+    figure(res, args, args.out)
+    print(f"total {time.perf_counter() - started:.0f} s wall clock")
+    return res
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,99 @@
+"""Vicsek et al. 1995 (examples/vicsek1995.py), scaled down: the computation of the
+script on small systems and short runs, its physics asserted with tolerances from the
+measured errors. 88 CPU-seconds (2.7 min of wall clock on the project's 2 shared cores)."""
+
+from __future__ import annotations
+
+import importlib.util
+import pathlib
+
+import numpy as np
+import pytest
+
+SCRIPT = pathlib.Path(__file__).resolve().parents[1] / "examples" / "vicsek1995.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("example_vicsek1995", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+vicsek = _load()
+
+REPLICAS, STEPS, DISCARD = 4, 3000, 1000
+NOISES = (1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 2 * np.pi)
+
+
+@pytest.fixture(scope="module")
+def fig2a():
+    """Per system time means (v_a, v_a^2) at density 4 for N = 40 and 400."""
+    return {n: vicsek.order(n, 4.0, NOISES, REPLICAS, STEPS, DISCARD, seed=7) for n in (40, 400)}
+
+
+@pytest.mark.slow
+def test_the_fully_random_limit_is_the_mean_length_of_random_unit_vectors(fig2a):
+    # eta = 2 pi draws every heading anew, uniform on the circle, every step: v_a is then
+    # |mean of N independent unit vectors|, whose mean is sqrt(pi / (4 N)) (1 - 1/(16 N) + ...)
+    # (a two-dimensional random walk of N unit steps). Tolerance: 4 standard errors over the
+    # systems plus the 1/(16 N) correction left out.
+    for n, (m1, _) in fig2a.items():
+        mean, error = vicsek.mean_error(m1[-1])
+        expected = np.sqrt(np.pi / (4 * n))
+        assert abs(mean - expected) < 4 * error + expected / (16 * n), (n, mean, error, expected)
+
+
+@pytest.mark.slow
+def test_order_falls_with_noise_and_more_steeply_for_more_particles(fig2a):
+    # Fig. 2a: every curve falls from near 1 (eta = 1: 0.95 in the script's runs) and the
+    # larger system lies below at high noise. Differences are asserted at 5 combined standard
+    # errors, far from the measured gaps (0.95 against 0.1 to 0.4).
+    for n, (m1, _) in fig2a.items():
+        mean, error = vicsek.mean_error(m1)
+        assert mean[0] > 0.9
+        assert np.all(mean[:-1] > mean[1:] - 3 * np.hypot(error[:-1], error[1:])), (n, mean)
+    (small, ds), (large, dl) = (vicsek.mean_error(fig2a[n][0]) for n in (40, 400))
+    high = NOISES.index(4.5)
+    assert small[high] - large[high] > 5 * np.hypot(ds[high], dl[high])
+    # the susceptibility of the larger system peaks inside the range, not at its ends
+    chi = vicsek.susceptibility(400, *fig2a[400])
+    assert 0 < int(np.argmax(chi[:-1])) < len(NOISES) - 2, chi
+
+
+@pytest.mark.slow
+def test_beta_agrees_with_the_paper_within_the_errors(fig2a):
+    # The script's fit on N = 400 below the susceptibility's peak, its 68 % interval from a
+    # bootstrap over the systems; the paper's beta = 0.45 +- 0.07. Agreement within three
+    # combined standard deviations (ours: half the interval's width).
+    m1, m2 = fig2a[400]
+    chi = vicsek.susceptibility(400, m1, m2)
+    peak = NOISES[int(np.argmax(chi[:-1]))]
+    keep = [i for i, eta in enumerate(NOISES) if 1.0 <= eta < peak]
+    noises, per = np.asarray(NOISES)[keep], m1[keep]
+    beta, eta_c, _ = vicsek.fit_beta(noises, *vicsek.mean_error(per))
+    lo, hi = vicsek.interval(vicsek.bootstrap(vicsek.fit_beta, noises, per, 100, seed=1))
+    paper, paper_error = vicsek.PAPER["beta"]
+    assert eta_c > noises.max()
+    assert abs(beta - paper) < 3 * np.hypot((hi - lo) / 2, paper_error), (beta, lo, hi)
+
+
+@pytest.mark.slow
+def test_order_grows_with_density_at_fixed_noise():
+    # Fig. 2b at L = 20, eta = 2: rho = 0.1 (N = 40) against rho = 2 (N = 800); the script's
+    # runs give 0.28 +- 0.01 and 0.64 +- 0.03. Asserted at 5 combined standard errors.
+    low = vicsek.mean_error(vicsek.order(40, 0.1, [2.0], REPLICAS, STEPS, DISCARD, seed=3)[0][0])
+    high = vicsek.mean_error(vicsek.order(800, 2.0, [2.0], REPLICAS, STEPS, DISCARD, seed=3)[0][0])
+    assert high[0] - low[0] > 5 * np.hypot(low[1], high[1]), (low, high)
+
+
+def test_the_fits_recover_exact_power_laws():
+    # Quick and exact: noiseless power laws give back their exponents and eta_c.
+    eta = np.linspace(1.0, 3.0, 9)
+    values = 0.9 * ((3.4 - eta) / 3.4) ** 0.45
+    beta, eta_c, lna = vicsek.fit_beta(eta, values, 0.01 * values)
+    assert beta == pytest.approx(0.45, abs=1e-5) and eta_c == pytest.approx(3.4, abs=1e-4)
+    assert lna == pytest.approx(np.log(0.9), abs=1e-5)
+    rho = np.array([0.1, 0.2, 0.5, 1.0])
+    delta, lnb = vicsek.fit_delta(rho, 0.4 * rho**0.35, np.full(4, 0.01))
+    assert delta == pytest.approx(0.35, abs=1e-9) and lnb == pytest.approx(np.log(0.4), abs=1e-9)
