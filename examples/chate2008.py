@@ -14,15 +14,14 @@ headings); periodic boxes. Every run starts from uniform positions with every he
    flocking.analysis.NumberFluctuations counts particles in square sub-boxes of side
    L / m and fits dn ~ <n>^alpha (its error: the larger of the fit's and a jackknife over
    frames).
-2. Bands: density 1, eta = 0.4 (just below the threshold, about 0.42 at this size), boxes
-   --band-boxes long along x and 32 across, started along +x. flocking.analysis.
-   DensityProfile along x (slabs of one R) gives the bands per frame and their speed
-   between frames; the profile in the band's frame is the mean of the frames' profiles
-   (slabs of R/2) shifted so that the front of each frame's densest band sits at x = 0, x
-   growing along the motion. The decay
-   lengths ahead of the peak (the front) and behind it (the tail) are from exponentials
-   fitted to rho - rho_gas (rho_gas: the median of the mean profile) where the excess
-   falls from 50 % to 5 % of the peak's.
+2. Bands: density 1, eta = 0.4 (just below the onset at this density: eta = 0.45 and 0.5
+   stayed disordered in the same box), boxes --band-boxes long along x and 32 across.
+   flocking.analysis.DensityProfile along x (slabs of R/2) finds the bands of each frame
+   and their speed between frames. The profile in the band's frame is the mean over the
+   frames that hold exactly one band of their profiles shifted so that the band's front
+   sits at x = 0, x growing along the motion. Front and tail: exponentials fitted to the
+   excess rho - rho_gas (rho_gas: the median of the mean profile) where it falls from 50 %
+   to 5 % of the peak's, ahead of the peak and behind it.
 3. The Binder cumulant at L = 16 and 32 (density 2), read from examples/finite_size.png
    (its command is in docs/figures.toml; 13.5 min on 2 busy cores), +-0.005.
 
@@ -32,8 +31,11 @@ so no band speed, band width or decay length of the paper is quoted (see
 docs/literature.md).
 
     python examples/chate2008.py --out chate2008.png
-    # 9 min wall clock on the project's 2 cores while other programs ran (load about 5)
-    python examples/chate2008.py --gnf-box 64 --gnf-steps 4000 --band-boxes 128 --band-steps 4000 --out small.png
+    # 2.7 to 6 min wall clock (about 100 s of CPU time) on the project's 2 cores, as other
+    # programs kept them busy (load average 5 to 14)
+    # the scale of tests/test_literature_chate2008.py (about a minute):
+    python examples/chate2008.py --gnf-box 64 --gnf-steps 3000 --gnf-equilibrate 1000 \
+        --band-boxes 256 --band-steps 2000 --band-equilibrate 4000 --out small.png
 """
 
 from __future__ import annotations
@@ -139,7 +141,9 @@ def bands(length: float, steps: int, equilibrate: int, every: int, seed: int = 3
     nbins = profiles.shape[1]
     width = dp.period / nbins
     home = (3 * nbins) // 4  # the front's slab after the shift: most of the box lies behind it
-    mean = np.array([np.roll(p, home - front_slab(p)) for p in profiles]).mean(axis=0)
+    single = dp.band_counts == 1  # the profile of one band: frames holding exactly one
+    chosen = profiles[single] if single.any() else profiles
+    mean = np.array([np.roll(p, home - front_slab(p)) for p in chosen]).mean(axis=0)
     x = (np.arange(nbins) - home) * width
     gas = float(np.median(mean))
     excess = mean - gas
@@ -152,7 +156,7 @@ def bands(length: float, steps: int, equilibrate: int, every: int, seed: int = 3
             "band_counts": dp.band_counts, "band_width": float(dp.band_width),
             "speed": float(speeds.mean()) if len(speeds) else float("nan"),
             "speed_error": float(speeds.std(ddof=1) / np.sqrt(len(speeds))) if len(speeds) > 1 else float("nan"),
-            "x": x, "profile": mean, "gas": gas, "peak_density": float(mean[peak]), "peak_x": float(x[peak]),
+            "profiled": int(len(chosen)), "x": x, "profile": mean, "gas": gas, "peak_density": float(mean[peak]), "peak_x": float(x[peak]),
             "ahead": ahead, "behind": behind, "tail_points": int(mask.sum()), "front_points": int(ahead_mask.sum()),
             "front": decay_length(x[peak:], excess[peak:], ahead_mask),
             "tail": decay_length(x[peak::-1], excess[peak::-1], mask)}
@@ -185,16 +189,16 @@ def figure(gnf: dict, runs: list[dict], path: str, theme: str, size: str) -> Non
                     color=colours[(k + 2) % len(colours)],
                     label=f"{run['box'][0]:g}×{run['box'][1]:g}: front {run['front'][0]:.1f}, tail {run['tail'][0]:.1f}")
     ax.set_xlim(-110, 30)
-    ax.set_ylim(1e-2, None)
+    ax.set_ylim(1e-2, 40.0)
     house.label_axes(ax, r"$x$ along the motion (band frame)", r"$\rho - \rho_{gas}$")
     house.legend(ax, theme, loc="upper left")
     ax = axes[2]
     for k, (length, values) in enumerate(FINITE_SIZE_BINDER.items()):
         ax.errorbar(FINITE_SIZE_NOISES, values, yerr=READ_PRECISION, fmt="o-", ms=3, lw=1, capsize=2,
-                    color=colours[k % len(colours)], label=f"L = {length} (finite_size.png)")
+                    color=colours[k % len(colours)], label=f"L = {length}")
     ax.axhline(1 / 3, color=colours[-1], lw=0.8, ls=":")
-    house.label_axes(ax, r"noise $\eta$", "G")
-    house.legend(ax, theme, loc="lower left")
+    house.label_axes(ax, r"noise $\eta$", "G (read from finite_size.png)")
+    house.legend(ax, theme, loc="upper right")
     house.title(fig, "Chaté et al. 2008: number fluctuations, bands, Binder cumulant",
                 r"angular noise · $v_0$ = 0.5 · GNF $\rho$ = 2, $\eta$ = 0.3 · bands $\rho$ = 1, $\eta$ = 0.4")
     house.save(fig, path)
@@ -214,7 +218,8 @@ def report(gnf: dict, runs: list[dict]) -> None:
               f"<phi> = {run['order']:.3f}")
         print(f"  bands per frame (count: frames) {share}; equivalent width {run['band_width']:.1f}")
         print(f"  speed = {run['speed']:.3f} +- {run['speed_error']:.3f} (v0 = {BASE['speed']})")
-        print(f"  peak density {run['peak_density']:.2f}, gas {run['gas']:.3f} (mean {BANDS['density']:g})")
+        print(f"  profile of the {run['profiled']} frames with one band: peak density {run['peak_density']:.2f}, "
+              f"gas {run['gas']:.3f} (mean {BANDS['density']:g})")
         print(f"  excess from 50 % to 5 % of the peak's: over {run['ahead']:.1f} ahead of the peak, "
               f"{run['behind']:.1f} behind it (peak at x = {run['peak_x']:.1f} from the front)")
         print(f"  decay length: front {run['front'][0]:.2f} +- {run['front'][1]:.2f} ({run['front_points']} slabs "
@@ -228,13 +233,13 @@ def report(gnf: dict, runs: list[dict]) -> None:
 
 def parse(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--gnf-box", type=float, default=256.0)
+    p.add_argument("--gnf-box", type=float, default=128.0)
     p.add_argument("--gnf-steps", type=int, default=8_000, help="steps measured (after --gnf-equilibrate)")
     p.add_argument("--gnf-equilibrate", type=int, default=2_000)
     p.add_argument("--gnf-every", type=int, default=100)
     p.add_argument("--band-boxes", default="256,512", help="band box lengths along x, comma-separated")
-    p.add_argument("--band-steps", type=int, default=10_000)
-    p.add_argument("--band-equilibrate", type=int, default=10_000)
+    p.add_argument("--band-steps", type=int, default=4_000)
+    p.add_argument("--band-equilibrate", type=int, default=8_000)
     p.add_argument("--band-every", type=int, default=50)
     p.add_argument("--out", default="chate2008.png")
     p.add_argument("--theme", default="light")
