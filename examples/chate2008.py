@@ -123,7 +123,10 @@ def fall(x: np.ndarray, excess: np.ndarray, high: float, low: float) -> tuple[fl
 
 def decay_length(x: np.ndarray, excess: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
     """``(length, error)`` of an exponential fitted to ``excess`` over ``mask``: the slope
-    of ``log excess`` against ``|x|`` (least squares, its formal error)."""
+    of ``log excess`` against ``|x|`` (least squares, its formal error); NaN with fewer
+    than three points."""
+    if mask.sum() < 3:
+        return float("nan"), float("nan")
     (slope, _), cov = np.polyfit(np.abs(x[mask]), np.log(excess[mask]), 1, cov=True)
     return float(-1.0 / slope), float(np.sqrt(cov[0, 0]) / slope**2)
 
@@ -156,7 +159,8 @@ def bands(length: float, steps: int, equilibrate: int, every: int, seed: int = 3
             "band_counts": dp.band_counts, "band_width": float(dp.band_width),
             "speed": float(speeds.mean()) if len(speeds) else float("nan"),
             "speed_error": float(speeds.std(ddof=1) / np.sqrt(len(speeds))) if len(speeds) > 1 else float("nan"),
-            "profiled": int(len(chosen)), "x": x, "profile": mean, "gas": gas, "peak_density": float(mean[peak]), "peak_x": float(x[peak]),
+            "profiled": len(chosen), "x": x, "profile": mean, "gas": gas, "peak_density": float(mean[peak]),
+            "peak_x": float(x[peak]),
             "ahead": ahead, "behind": behind, "tail_points": int(mask.sum()), "front_points": int(ahead_mask.sum()),
             "front": decay_length(x[peak:], excess[peak:], ahead_mask),
             "tail": decay_length(x[peak::-1], excess[peak::-1], mask)}
@@ -187,7 +191,8 @@ def figure(gnf: dict, runs: list[dict], path: str, theme: str, size: str) -> Non
     for k, run in enumerate(runs):
         ax.semilogy(run["x"], np.clip(run["profile"] - run["gas"], 1e-3, None), "-", lw=1.2,
                     color=colours[(k + 2) % len(colours)],
-                    label=f"{run['box'][0]:g}×{run['box'][1]:g}: front {run['front'][0]:.1f}, tail {run['tail'][0]:.1f}")
+                    label=(f"{run['box'][0]:g}×{run['box'][1]:g}: front {run['front'][0]:.1f}, "
+                           f"tail {run['tail'][0]:.1f}"))
     ax.set_xlim(-110, 30)
     ax.set_ylim(1e-2, 40.0)
     house.label_axes(ax, r"$x$ along the motion (band frame)", r"$\rho - \rho_{gas}$")
@@ -207,8 +212,8 @@ def figure(gnf: dict, runs: list[dict], path: str, theme: str, size: str) -> Non
 def report(gnf: dict, runs: list[dict]) -> None:
     """Print every number docs/literature.md quotes, the paper's beside ours."""
     print(f"GNF: L = {gnf['box']:g}, N = {gnf['n']}, {gnf['frames']} frames, <phi> = {gnf['order']:.3f}")
-    for l, m, s, e, f in zip(gnf["sizes"], gnf["mean"], gnf["std"], gnf["std_error"], gnf["fitted"]):
-        print(f"  l = {l:7.3f}  <n> = {m:9.2f}  dn = {s:8.3f} +- {e:.3f}{'' if f else '  (not fitted)'}")
+    for side, m, s, e, f in zip(gnf["sizes"], gnf["mean"], gnf["std"], gnf["std_error"], gnf["fitted"]):
+        print(f"  l = {side:7.3f}  <n> = {m:9.2f}  dn = {s:8.3f} +- {e:.3f}{'' if f else '  (not fitted)'}")
     print(f"  alpha = {gnf['alpha']:.3f} +- {gnf['alpha_error']:.3f}   paper: {PAPER_ALPHA}   Poisson: {POISSON_ALPHA}")
     for run in runs:
         counts = run["band_counts"]
@@ -245,7 +250,17 @@ def parse(argv=None):
     p.add_argument("--theme", default="light")
     p.add_argument("--size", default="page")
     args = p.parse_args(argv)
-    args.band_boxes = [float(x) for x in args.band_boxes.split(",")]
+    try:
+        args.band_boxes = [float(x) for x in args.band_boxes.split(",")]
+    except ValueError:
+        p.error(f"--band-boxes: must be box lengths such as 256,512 (got {args.band_boxes!r})")
+    for name in ("gnf_steps", "gnf_every", "band_steps", "band_every"):
+        if getattr(args, name) <= 0:
+            p.error(f"--{name.replace('_', '-')}: must be positive (got {getattr(args, name)})")
+    if args.gnf_steps // args.gnf_every < 4:  # dn's error bars need four quarters of frames
+        p.error(f"--gnf-steps: must give at least 4 frames, 4 x --gnf-every (got {args.gnf_steps})")
+    if args.band_steps // args.band_every < 2:  # a speed needs two frames
+        p.error(f"--band-steps: must give at least 2 frames, 2 x --band-every (got {args.band_steps})")
     return args
 
 

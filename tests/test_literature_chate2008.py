@@ -64,3 +64,20 @@ def test_bands_travel_with_a_steep_front_and_an_exponential_tail():
     (front, front_err), (tail, tail_err) = run["front"], run["tail"]
     assert front > 0 and tail > 0
     assert tail - front > 4 * np.hypot(front_err, tail_err)
+
+
+@pytest.mark.parametrize("argv", [["--gnf-steps", "300"], ["--band-steps", "50"], ["--band-boxes", "x"],
+                                  ["--gnf-every", "0"], ["--band-every", "-1"]])
+def test_the_script_refuses_runs_it_cannot_measure(argv, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        load().parse(argv)
+    assert exit_.value.code == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]  # one line: the option and why
+    assert f"error: {argv[0]}: must" in last, last
+
+
+def test_the_script_defaults_are_the_documented_run():
+    args = load().parse([])
+    assert (args.gnf_box, args.gnf_steps, args.gnf_equilibrate, args.gnf_every) == (128.0, 8000, 2000, 100)
+    assert args.band_boxes == [256.0, 512.0]
+    assert (args.band_steps, args.band_equilibrate, args.band_every) == (4000, 8000, 50)
