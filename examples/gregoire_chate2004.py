@@ -25,8 +25,8 @@ threshold, where a run switches only a few times, are rough: say so when quoting
     python examples/gregoire_chate2004.py --steps 20000 --hist-steps 40000 --out quick.png
     # half the steps: about half the time
 
-The sizes are modest: a box of 64 (N = 8192) costs about four times a box of 32 a step and
-switches between its states more rarely still; it was not run here.
+The sizes are modest: a box of 64 (N = 8192, four times the particles of a box of 32) was
+not run here; N = 2048 already switches between its states too rarely for runs this long.
 """
 
 from __future__ import annotations
