@@ -253,3 +253,51 @@ def test_polar_needs_two_values():
         fa.PolarOrder(start=9).compute(np.ones(10))
     with pytest.raises(flocking.ParameterError, match="^start:"):
         fa.PolarOrder(start="later")
+
+
+# --- the distribution of the order in the window ----------------------------------------
+
+def test_histogram_counts_the_window_exactly():
+    # 10 values, the first 4 left out by start=4: 0.05 and 0.15 in bin 0, 0.45 in bin 2 and
+    # 0.5 on an edge (bin 2 of [0.4, 0.6) ... with 5 bins), 0.95, 1.0 and a rounding error above
+    # 1 in the last bin (1 belongs to it)
+    series = np.array([0.9, 0.9, 0.9, 0.9, 0.05, 0.15, 0.45, 0.5, 0.95, 1.0 + 1e-15])
+    op = fa.PolarOrder(start=4).compute(series)
+    hist = op.histogram(bins=5)
+    np.testing.assert_allclose(hist.edges, [0.0, 0.2, 0.4, 0.6, 0.8, 1.0])
+    assert hist.counts.tolist() == [2, 0, 2, 0, 2]
+    np.testing.assert_allclose(hist.density, np.array([2, 0, 2, 0, 2]) / (6 * 0.2))
+    assert np.sum(hist.density * np.diff(hist.edges)) == pytest.approx(1.0)
+    assert fa.PolarOrder().compute(series).histogram(bins=1).counts.tolist() == [10]
+
+
+def test_histogram_of_a_bimodal_series_has_two_peaks():
+    rng = np.random.default_rng(3)
+    series = rng.permutation(np.r_[0.1 + 0.02 * rng.standard_normal(3000), 0.8 + 0.02 * rng.standard_normal(1000)])
+    hist = fa.PolarOrder().compute(series).histogram(bins=10)
+    assert hist.counts.sum() == 4000 and hist.counts[0] + hist.counts[1] == 3000
+    assert hist.counts[7] + hist.counts[8] == 1000 and hist.counts[2:7].sum() == 0
+
+
+@pytest.mark.parametrize("bins", [0, -3, 2.5, True, "10", None])
+def test_histogram_refuses_bad_bins(bins):
+    op = fa.NematicOrder().compute(np.array([0.2, 0.4, 0.6]))
+    with pytest.raises(fa.order.ParameterError, match=r"^bins: must be a whole number >= 1 \(got "):
+        op.histogram(bins)
+
+
+def test_histogram_before_compute():
+    with pytest.raises(fa.NotComputedError):
+        fa.PolarOrder().histogram()
+
+
+def test_histogram_plot(tmp_path):
+    from flocking.viz import style
+
+    op = fa.PolarOrder().compute(np.random.default_rng(4).permutation(np.linspace(0.0, 1.0, 101)), n=100)
+    fig, ax = style.figure("column", theme="light")
+    op.plot_histogram(ax, bins=20)
+    heights = [p for p in ax.patches]
+    assert len(heights) == 2 and ax.get_xlabel() and ax.get_ylabel() == "probability density"
+    style.save(fig, tmp_path / "h.png")
+    assert (tmp_path / "h.png").read_bytes()[:4] == b"\x89PNG"

@@ -3,6 +3,7 @@
 import csv
 import json
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -56,6 +57,25 @@ def test_everything_is_written(run_dir):
     assert data["polar"]["samples"] == 41 and data["polar"]["window_start"] == 20
     assert rows(run_dir / "cluster_sizes.csv")[0] == ["size", "clusters_all_frames", "clusters_per_frame"]
     assert rows(run_dir / "density_profile.csv")[0][1] == "density"
+    hist = rows(run_dir / "polar_order_histogram.csv")
+    assert hist[0] == ["low", "high", "count", "density"] and len(hist) == 51
+    assert sum(int(r[2]) for r in hist[1:]) == 41  # every value of the window, once
+    assert (run_dir / "polar_order_histogram.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_histogram_bins_and_its_counts(run_dir, tmp_path):
+    import flocking.analysis as fa
+
+    res = run("analyze", run_dir, "--only", "polar", "--start", 20, "--bins", 4, "--out", tmp_path, "-q",
+              "--no-plots")
+    assert res.exit_code == 0, res.output
+    hist = rows(tmp_path / "polar_order_histogram.csv")
+    assert [r[:2] for r in hist[1:]] == [["0.0", "0.25"], ["0.25", "0.5"], ["0.5", "0.75"], ["0.75", "1.0"]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the short run drifts: the counts, not the mean, are tested
+        expected = fa.PolarOrder(start=20).compute(run_dir).histogram(4).counts.tolist()
+    assert [int(r[2]) for r in hist[1:]] == expected and sum(expected) == 41
+    assert sorted(os.listdir(tmp_path)) == ["analysis.json", "polar_order_histogram.csv", "polar_order_window.csv"]
 
 
 def test_times_are_in_the_model_units(run_dir, tmp_path):
@@ -179,6 +199,8 @@ def test_dpi_and_size_set_the_pixels(run_dir, tmp_path):
     (["analyze", "{run}", "--start", "100000"], "--start: leaves 0 value(s)"),
     (["analyze", "{run}", "--frames", "0"], "--frames"),
     (["analyze", "{run}", "--max-lag", "0"], "--max-lag"),
+    (["analyze", "{run}", "--bins", "0"], "--bins: must be a whole number >= 1 (got 0)"),
+    (["analyze", "{run}", "--bins", "-2"], "--bins: must be a whole number >= 1 (got -2)"),
     (["analyze", "{run}", "--r-max", "-1", "--only", "correlation"], "--r-max"),
     (["analyze", "{run}", "--method", "magic"], "--method: must be one of"),
     (["analyze", "{run}", "--theme", "pink"], "--theme"),

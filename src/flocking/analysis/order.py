@@ -33,6 +33,7 @@ import math
 import numbers
 import os
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 
@@ -69,6 +70,23 @@ def integrated_time(x, c: float = 5.0) -> float:
     ok = windows >= c * taus
     w = int(np.argmax(ok)) if ok.any() else len(taus) - 1
     return float(max(taus[w], 0.5)) if len(taus) else 0.5
+
+
+class Histogram(NamedTuple):
+    """The distribution of an order parameter over a window: ``counts[k]`` values lie in
+    ``[edges[k], edges[k + 1])`` (the last bin holds 1 too); ``density`` is ``counts``
+    divided by ``samples x bin width``, so that it integrates to 1."""
+
+    edges: np.ndarray
+    counts: np.ndarray
+    density: np.ndarray
+
+
+def histogram_bins(bins) -> int:
+    """``bins`` checked: a whole number >= 1 (:class:`ParameterError` otherwise)."""
+    if isinstance(bins, bool) or not isinstance(bins, numbers.Integral) or bins < 1:
+        raise ParameterError(f"bins: must be a whole number >= 1 (got {bins!r})")
+    return int(bins)
 
 
 def _jackknife(values: np.ndarray, block: int, n: int) -> dict[str, float]:
@@ -297,6 +315,39 @@ class _Order(Analysis):
                     equilibrated=bool(equilibrated), suggested_start=suggested, dt_used=dt,
                     notes=order_notes(moments, errors, n, len(x), block))
         return self
+
+    def histogram(self, bins: int = 50) -> Histogram:
+        """The distribution of the values in the window: ``bins`` equal bins over [0, 1],
+        the range of the order (values a rounding error outside it are counted at its
+        ends). Bimodal near a discontinuous transition, where the run switches between an
+        ordered and a disordered state.
+
+        >>> op = PolarOrder().compute(np.array([0.05, 0.1, 0.12, 0.8, 0.85, 1.0]))
+        >>> op.histogram(bins=4).counts.tolist(), op.histogram(bins=4).density.tolist()
+        ([3, 0, 0, 3], [2.0, 0.0, 0.0, 2.0])
+        """
+        bins = histogram_bins(bins)
+        x = np.clip(self.series[self.window], 0.0, 1.0)
+        counts, edges = np.histogram(x, bins=bins, range=(0.0, 1.0))
+        return Histogram(edges, counts, counts / (x.size * (1.0 / bins)))
+
+    def plot_histogram(self, ax=None, theme=None, bins: int = 50):
+        """The distribution of the values in the window (:meth:`histogram`, as a density),
+        with the mean over the window and its error."""
+        from ..viz import style
+
+        hist = self.histogram(bins)
+        ax, theme = self._axes(ax, theme)
+        colours = style.palette(theme)
+        symbol = self._symbol_of()
+        ax.stairs(hist.density, hist.edges, fill=True, color=colours[0], alpha=0.35)
+        ax.stairs(hist.density, hist.edges, color=colours[0], lw=1.0,
+                  label=f"{self.samples} values, {len(hist.counts)} bins")
+        ax.axvline(self.mean, color=colours[1], lw=1.4, ls="--",
+                   label=rf"$\langle {symbol}\rangle = {format_value(self.mean, self.mean_error)}$")
+        style.label_axes(ax, self._axis_label, "probability density")
+        legend(ax, theme)
+        return ax
 
     def _what(self) -> str:
         quantity = self._column.replace("_", " ")

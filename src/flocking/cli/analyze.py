@@ -28,6 +28,10 @@ SERIES = ("polar", "species", "nematic")
 #: quantities that coarse-grained fields (fields.nc) give, with --from-fields
 FROM_FIELDS = ("fluctuations", "structure")
 
+#: quantities whose distribution over the window is written too: quantity -> (file stem, figure title)
+HISTOGRAMS = {"polar": ("polar_order_histogram", "Distribution of the polar order"),
+              "nematic": ("nematic_order_histogram", "Distribution of the nematic order")}
+
 #: quantity -> (file stem, figure title, CSV columns as (header, attribute)); a header
 #: ``None`` is named for the profile's axis
 OUTPUTS = {
@@ -122,6 +126,8 @@ RENAMED = {"radius": "cluster_radius"}
               help="Use at most the last N frames of the window (the polar order uses every step).  [default: all]")
 @click.option("--max-lag", type=click.INT, default=None,
               help="Largest lag of the mean square displacement, in steps.  [default: all]")
+@click.option("--bins", type=click.INT, default=50, show_default=True,
+              help="Bins over [0, 1] of the distribution of the polar (and nematic) order in the window.")
 @click.option("--cluster-radius", type=click.FLOAT, default=None,
               help="Two particles closer than this are in one cluster.  [default: the run's radius]")
 @click.option("--r-max", type=click.FLOAT, default=None, help="Largest distance of C(r).  [default: L/2]")
@@ -141,8 +147,8 @@ RENAMED = {"radius": "cluster_radius"}
 @opt.dpi()
 @opt.plots("A figure per quantity (without: JSON and CSV only).")
 @opt.quiet("No summary on stderr.")
-def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, method, k_max, from_fields, out, theme,
-            size, fmt, dpi, plots, quiet):
+def analyze(run_dir, only, start, frames, max_lag, bins, cluster_radius, r_max, dr, method, k_max, from_fields, out,
+            theme, size, fmt, dpi, plots, quiet):
     """Measure a run: polar order, number fluctuations, structure factor, velocity
     correlation, density profile, clusters, box-counting dimension and MSD; the polar order of each species
     and the nematic order when the run has several species or nematic alignment.
@@ -159,6 +165,7 @@ def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, me
       flocking analyze traj.gsd --frames 20 --r-max 20 --out results --theme light --format pdf
     """
     from ..analysis import snapshots
+    from ..analysis.order import histogram_bins
     from ..viz import style
 
     names = parse_only(only)
@@ -167,6 +174,7 @@ def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, me
     for option, value in (("frames", frames), ("max_lag", max_lag)):
         if value is not None and value < 1:
             raise ParameterError(f"{option}: must be a whole number >= 1 (got {value})")
+    histogram_bins(bins)
     if not os.path.exists(run_dir):
         raise ParameterError(f"RUN_DIR {run_dir!r}: no such folder or file")
     folder = run_dir if os.path.isdir(run_dir) else os.path.dirname(os.path.abspath(run_dir))
@@ -242,6 +250,14 @@ def analyze(run_dir, only, start, frames, max_lag, cluster_radius, r_max, dr, me
             obj.plot(ax)
             style.title(fig, heading, details)
             style.save(fig, os.path.join(out, f"{stem}.{fmt}"), dpi=dpi)
+        if name in HISTOGRAMS:
+            stem, heading = HISTOGRAMS[name]
+            write_histogram(os.path.join(out, stem + ".csv"), obj.histogram(bins))
+            if plots is not False:
+                fig, ax = style.figure(size, theme=theme)
+                obj.plot_histogram(ax, bins=bins)
+                style.title(fig, heading, details)
+                style.save(fig, os.path.join(out, f"{stem}.{fmt}"), dpi=dpi)
     write_json(os.path.join(out, "analysis.json"), summary)
     if not quiet:
         for line in [window_line(window)] + summary_lines(results):
@@ -399,6 +415,16 @@ def write_csv(path: str, obj, columns) -> None:
         writer.writerow(headers)
         for row in zip(*[v.tolist() for v in values]):
             writer.writerow([int(x) if isinstance(x, bool) else x for x in row])
+
+
+def write_histogram(path: str, hist) -> None:
+    """A distribution's CSV: ``low, high, count, density``, a row per bin."""
+    with replace_atomically(path, newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["low", "high", "count", "density"])
+        for row in zip(hist.edges[:-1].tolist(), hist.edges[1:].tolist(), hist.counts.tolist(),
+                       hist.density.tolist()):
+            writer.writerow(row)
 
 
 def write_json(path: str, data: dict) -> None:
