@@ -139,7 +139,7 @@ class StructureFactor(Analysis):
     def parameters(self) -> dict:
         return {"k_max": self.k_max_requested, "start": self.start, "frames": self.frames}
 
-    k = result("k", "Mean |k| of each shell's wavevectors, in units of 1/R.")
+    k = result("k", "The mean length of each shell's wavevectors, in units of 1/R.")
     s = result("s", "S(k) of each shell: the mean over its wavevectors and the frames.")
     s_error = result("s_error", "Standard error of s (see the module).")
     counts = result("counts", "Wavevectors in each shell.")
