@@ -49,6 +49,11 @@ for name, signature in cuda_kernels.signatures(precision, dim, species).items():
         # float32 kernels do their per-particle arithmetic in float32: the only doubles
         # are the random numbers' 53-bit fractions, converted once each
         assert ptx.count("cvt.rn.f32.f64") >= 1 and "sqrt.rn.f64" not in ptx, "a float64 square root"
+# the device's zeroing of the cell starts, the sort's status and the delay ring
+from flocking.backends import cuda_init
+for dtype in ("int32", "int64", precision):
+    ptx, _ = cuda.compile_ptx(cuda_init.filler().py_func, f"void({dtype}[::1], int64)", cc=(9, 0))
+    assert ".entry" in ptx, dtype
 # the step of a delayed model (the ring read before the neighbour search) compiles too
 delayed = cuda_kernels.build(precision, dim, k, Launch(256, 8, 8), features, species, True)
 ptx, _ = cuda.compile_ptx(delayed.step.py_func, cuda_kernels.signatures(precision, dim, species)["step"], cc=(9, 0))

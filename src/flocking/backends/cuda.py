@@ -51,6 +51,7 @@ import numpy as np
 from ..model import Model, ParameterError
 from ..observables import moment_width
 from ..state import State, frame_arrays
+from . import cuda_init
 from .cells import cell_grid
 from .cuda_sort import Launch, radix_launches
 from .features import features, ring_width, tables
@@ -231,9 +232,8 @@ class Engine:
         self._cur = cuda_kernels.Particles(dev((d, m), real), dev((d, m), real), dev(size, real), dev(m, np.int32))
         self._new = cuda_kernels.Particles(dev((d, m), real), dev((d, m), real), dev(size, real), dev(m, np.int32))
         self._rec, self._rec2 = dev(m, np.uint64), dev(m, np.uint64)
-        start = np.zeros(r * cells + 1, dtype=np.int32)
-        start[-1] = m
-        self._start = cuda.to_device(start)
+        self._start = cuda_init.zeros(r * cells + 1, np.int32)
+        self._start[r * cells:].copy_to_device(np.array([m], dtype=np.int32))
         self._partial = dev((self._width, r * self._qb), np.float64)
         self._phi = cuda.to_device(np.zeros((r, self._rows, self._width)))
         self.moments = np.zeros((r, 0, self._width))
@@ -241,12 +241,11 @@ class Engine:
         sort = kernels.sort
         self._hist = cuda.to_device(np.zeros(sort.max_passes * sort.digits_per_pass, dtype=np.int32))
         self._tile_counter = cuda.to_device(np.zeros(sort.max_passes, dtype=np.int32))
-        self._status = cuda.to_device(np.zeros(-(-m // sort.tile) * sort.digits_per_pass, dtype=np.int64))
+        self._status = cuda_init.zeros(-(-m // sort.tile) * sort.digits_per_pass, np.int64)
         # (slot, particle, sums): the cpu backend's layout, a step reads and writes the slab
         # of slot t % tau
         width = ring_width(d, self._features)
-        self._ring = cuda.to_device(np.zeros((max(self._taus), m, width) if max(self._taus) else (1, 1, width),
-                                             dtype=real))
+        self._ring = cuda_init.zeros((max(self._taus), m, width) if max(self._taus) else (1, 1, width), real)
         self._step_count = step
         self._graphs = graphs and not simulated
         self._graph = None
@@ -281,7 +280,6 @@ class Engine:
     def _draw(self, kinds: list[str]) -> None:
         """Draw the states of ``kinds`` on the device into the ``new_*`` buffers
         (:mod:`flocking.backends.cuda_init`), then sort them in: no array of N on the host."""
-        from . import cuda_init
 
         cuda, m = self._cuda, self.replicas * self.n
         draw, _ = cuda_init.build(self.precision, self.dim)
@@ -299,7 +297,6 @@ class Engine:
     def polar_order_now(self) -> np.ndarray:
         """Each replica's polar order of the state on the device, ``(R,)``, from the moment
         sums the last sort left per block, added in a fixed order on the device."""
-        from . import cuda_init
 
         _, reduce = cuda_init.build(self.precision, self.dim)
         out = self._cuda.device_array((self.replicas, self._width), np.float64)

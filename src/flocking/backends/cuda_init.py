@@ -1,4 +1,5 @@
-"""Initial states drawn on the GPU, and the moment sums of the state the device holds.
+"""Initial states drawn on the GPU, arrays zeroed there, and the moment sums of the state
+the device holds.
 
 :func:`draw` is :meth:`flocking.State.random` (and ``aligned``) as a kernel: a thread per
 particle draws its position and heading from the same counter-based numbers
@@ -9,6 +10,9 @@ the run's precision as :class:`~flocking.backends.cuda.Engine` would have upload
 No array of ``N`` exists on the host. Models with obstacles (their positions are drawn
 again until they fall outside) or with speeds that differ between particles are drawn on
 the host instead (:func:`drawable`).
+
+:func:`zeros` makes a zeroed device array without a host array behind it (the cell
+starts, the sort's status words, the delay ring: each as large as ``N`` or more).
 
 ``reduce`` adds the block sums that the gather kernel leaves in ``partial`` per replica,
 in a fixed order: the moment sums (and so the polar order) of the state on the device.
@@ -95,6 +99,30 @@ def build(precision: str, dim: int):
     namespace = {**globals(), "R": compile_rules("cuda", np.float64), "cuda": numba_cuda, "DIM": dim,
                  "REAL": real}
     return numba_cuda.jit(rebind(draw_state, namespace)), numba_cuda.jit(rebind(reduce, namespace))
+
+
+def fill(flat, value):
+    """``flat[i] = value``, a thread per entry."""
+    i = cuda.grid(1)
+    if i < flat.shape[0]:
+        flat[i] = value
+
+
+@functools.lru_cache(maxsize=None)
+def filler():
+    from numba import cuda as numba_cuda
+
+    return numba_cuda.jit(rebind(fill, {**globals(), "cuda": numba_cuda}))
+
+
+def zeros(shape, dtype):
+    """A device array of ``shape`` and ``dtype`` set to zero on the device."""
+    from numba import cuda as numba_cuda
+
+    out = numba_cuda.device_array(shape, dtype)
+    if out.size:
+        filler()[-(-out.size // 256), 256](out.reshape(out.size), 0)
+    return out
 
 
 def fold_lengths(model, real) -> np.ndarray:
