@@ -117,10 +117,11 @@ def written_by_flocking(name: str) -> bool:
     >>> [written_by_flocking(x) for x in ("snapshot.png", "msd.csv", "config.toml.812.tmp", "notes.txt")]
     [True, True, True, False]
     """
-    from .analyze import OUTPUTS
+    from .analyze import HISTOGRAMS, OUTPUTS
 
     extensions = (".csv", *(f".{e}" for e in opt.FORMATS))
-    names = set(RUN_FILES) | {stem + ext for stem, *_ in OUTPUTS.values() for ext in extensions}
+    stems = [stem for stem, *_ in (*OUTPUTS.values(), *HISTOGRAMS.values())]
+    names = set(RUN_FILES) | {stem + ext for stem in stems for ext in extensions}
     for name_ in names:
         ext = os.path.splitext(name_)[1]
         if re.fullmatch(re.escape(name_) + r"(\.\d+)?\.tmp", name) or name == f".{name_}.part{ext}":
