@@ -25,7 +25,7 @@ from flocking import Frame, Model, Simulation, State
 from flocking.analysis import Clusters
 from flocking.state import frame_arrays
 from flocking.viz import style as house
-from flocking.viz.render import plot_frame
+from flocking.viz.scene import plot_frame
 
 BASE = dict(n=512, box=80.0, speed=0.05, radius=1.0, noise_type="vectorial", cohesion=0.3)
 NOISES = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)

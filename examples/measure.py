@@ -201,7 +201,9 @@ def figure(path: str, out: str, theme: str = "light", size: str = "page", layout
     below in a figure narrower than 5 inches, a paper column). Writes ``out``; returns
     the means."""
     from flocking.viz import style as house
-    from flocking.viz.render import FrameArtist, describe, heading_key, readout_lines, species_key, time_text
+    from flocking.viz.caption import describe, readout_lines, time_text
+    from flocking.viz.keys import heading_key, species_key
+    from flocking.viz.particles import FrameArtist
 
     traj, model = open_run(path)
     nematic = model.get("alignment_rule") == "nematic"

@@ -55,13 +55,13 @@ def kind(param):
 
 def test_the_shared_choices_are_those_of_the_library():
     from flocking import backends
-    from flocking.viz import colors, extensions, render, style
+    from flocking.viz import colors, extensions, particles, style
 
     assert options.THEMES == tuple(colors.THEMES)
     assert options.SIZES == tuple(style.SIZES) and options.FORMATS == style.FORMATS
     assert options.COLORS == extensions.COLORS and options.DEFAULT_DPI == style.DPI
     assert set(options.BACKENDS) == set(backends.NAMES)
-    assert long_options(COMMANDS["animate"])["--style"].type.choices == render.STYLES
+    assert long_options(COMMANDS["animate"])["--style"].type.choices == particles.STYLES
     for dpi in (9.9, 1000.1, float("nan")):
         with pytest.raises(ParameterError, match="^dpi: must be in"):
             style.check_dpi(dpi)

@@ -30,8 +30,8 @@ from flocking.config import RunConfig
 from flocking.play import session as session_module
 from flocking.backends.cpu import CPUBackend
 from flocking.play.budget import session_bytes
-from flocking.play.session import (MAX_ERRORS, MAX_MESSAGE, MAX_N, MAX_STEP_SECONDS, Session, decode_frame,
-                                   encode_frame, parse_message)
+from flocking.play.codec import decode_frame, encode_frame
+from flocking.play.session import MAX_ERRORS, MAX_MESSAGE, MAX_N, MAX_STEP_SECONDS, Session, parse_message
 
 pytest.importorskip("starlette")
 pytest.importorskip("httpx")  # starlette's TestClient

@@ -17,7 +17,8 @@ from flocking.cli import main
 from flocking.viz.colors import THEMES, angle_colors
 from flocking.viz.live import LiveView
 from flocking.viz.movie import write_movie, write_picture, write_plots
-from flocking.viz.render import Scene, box_coordinates
+from flocking.viz.particles import box_coordinates
+from flocking.viz.scene import Scene
 
 SRC = os.path.join(os.path.dirname(__file__), os.pardir, "src")
 
@@ -352,7 +353,7 @@ def test_plot_frame_alone_takes_a_model_or_parameters():
 
 
 def test_write_plots_titles_carry_the_parameters(run_dir):
-    from flocking.viz.render import describe
+    from flocking.viz.caption import describe
 
     with flocking.open(run_dir / "trajectory.gsd") as traj:
         title, subtitle = describe(traj.parameters, 2, 30, traj[0].box_lengths)

@@ -16,7 +16,8 @@ from flocking.viz.density import DensityField
 from flocking.viz.extensions import obstacle_images, species_colors
 from flocking.viz.live import frame_of
 from flocking.viz.perspective import perspective_image
-from flocking.viz.render import Scene, box_coordinates, plot_frame
+from flocking.viz.particles import box_coordinates
+from flocking.viz.scene import Scene, plot_frame
 
 BOX = (20.0, 20.0)
 OBSTACLE = [4.0, 3.0, 3.0]  # centre (centred coordinates), radius

@@ -11,7 +11,8 @@ from matplotlib.font_manager import FontProperties
 import flocking
 from flocking.analysis import PolarOrder
 from flocking.viz import style
-from flocking.viz.render import Scene, describe
+from flocking.viz.caption import describe
+from flocking.viz.scene import Scene
 from flocking.viz.timeseries import polar_order_figure
 
 #: every option that adds to the caption

@@ -47,11 +47,7 @@ its step would is paused with a message. So is a flock that turns non-finite. St
 taken one at a time, so a closed tab (:meth:`Session.close`) stops within one step.
 Memory comes from the server's :class:`~flocking.play.budget.Budget`.
 
-Frames (:func:`encode_frame`) are little-endian: a 36-byte header (``b"FLK1"``, dim,
-flags, 2 spare bytes, N as uint32, the step as float64, the polar order and the three box
-lengths as float32), then the positions quantised to uint16 (``q = floor(x / L * 65536)``,
-N x dim, particle order), then the headings: one uint8 angle per particle in 2D, an
-azimuth and a ``z`` byte per particle in 3D.
+Frames are packed for the page by :mod:`.codec` (:func:`~.codec.encode_frame`).
 
 >>> from flocking import Model
 >>> s = Session(Model(n=100, box=8.0, noise=0.3, seed=1))
@@ -61,6 +57,7 @@ azimuth and a ``z`` byte per particle in 3D.
 >>> [reply.get("message", reply["type"]) for reply in s.take_replies()]  # the state puts the slider back
 ['noise: must be in [0, 2*pi] for angular noise (got 9.0)', 'state']
 >>> s.handle('{"type": "step"}')
+>>> from flocking.play.codec import decode_frame
 >>> f = decode_frame(s.take_frame())
 >>> f["step"], f["n"], f["positions"].shape
 (1, 100, (100, 2))
@@ -73,7 +70,6 @@ import importlib
 import json
 import logging
 import math
-import struct
 import sys
 import threading
 import time
@@ -85,12 +81,13 @@ import numpy as np
 
 from ..backends.cpu import CPUBackend
 from ..config import RunConfig
-from ..extensions import Obstacle, periodic_distance
+from ..extensions import Obstacle
 from ..model import Model, ParameterError
 from ..simulation import Simulation
 from ..space import Space
 from ..state import State, initial_speeds
 from .budget import Budget, session_bytes
+from .codec import RUNNING, encode_frame
 
 #: Limits that keep one tab from taking the machine down.
 MAX_N = 200_000
@@ -161,11 +158,6 @@ INITS = ("random", "aligned")
 SLOW = ("radius", "k", "n", "density", "dim", "neighbours", "obstacles", "species", "coupling", "vision",
         "cohesion", "chirality", "boundary")
 LARGE = ("n", "delay", "dim", "density", "speeds")
-
-HEADER = struct.Struct("<4sBBHIdf3f")
-MAGIC = b"FLK1"
-RUNNING = 1  # flag bit
-
 
 class ProtocolError(ValueError):
     """A control message that is not well formed; the text goes back to the page."""
@@ -408,8 +400,8 @@ class Session:
             raise ProtocolError(f"obstacle.at: must be {target.dim} numbers, a point in the box (got {at!r})"[:300])
         at = tuple(float(x) for x in at)
         obstacles = list(target.obstacles)
-        hit = next((i for i, ob in enumerate(obstacles)
-                    if periodic_distance(at, ob.centre, target.box, target.walls) <= ob.radius), None)
+        space = Space.of(target)
+        hit = next((i for i, ob in enumerate(obstacles) if space.distance(at, ob.centre) <= ob.radius), None)
         if hit is not None:
             del obstacles[hit]
         else:
@@ -584,50 +576,3 @@ def clear_obstacles(model: Model, positions: np.ndarray, headings: np.ndarray) -
     (1, [7.0, 5.0], [1.0, 0.0])
     """
     return Space.of(model).clear_obstacles(positions, headings, 1e-6 * model.max_speed * model.dt)
-
-
-# -- frames ------------------------------------------------------------------------------
-
-
-def encode_frame(state: State, model: Model, phi: float, running: bool = True) -> bytes:
-    """The binary frame of ``state`` (see the module docstring for the layout)."""
-    n, dim = state.positions.shape
-    box = np.asarray(model.box, dtype=np.float64)
-    q = np.floor(state.positions * (65536.0 / box))
-    positions = np.clip(q, 0, 65535).astype("<u2")
-    h = state.headings
-    azimuth = np.arctan2(h[:, 1], h[:, 0]) * (256.0 / (2.0 * math.pi))
-    azimuth = np.round(azimuth).astype(np.int64) % 256
-    if dim == 2:
-        headings = azimuth.astype(np.uint8)
-    else:
-        z = np.round((np.clip(h[:, 2], -1.0, 1.0) + 1.0) * 127.5).astype(np.uint8)
-        headings = np.stack([azimuth.astype(np.uint8), z], axis=1)
-    lengths = (*model.box, 0.0) if dim == 2 else model.box
-    header = HEADER.pack(MAGIC, dim, RUNNING if running else 0, 0, n, float(state.step), phi, *lengths)
-    return header + positions.tobytes() + headings.tobytes()
-
-
-def decode_frame(data: bytes) -> dict[str, Any]:
-    """The inverse of :func:`encode_frame`, to quantisation (for tests and tools).
-
-    Positions come back at the centres of their bins (error at most ``L / 131072``),
-    headings as unit vectors.
-    """
-    magic, dim, flags, _, n, step, phi, *box = HEADER.unpack_from(data)
-    if magic != MAGIC:
-        raise ValueError("not a flocking play frame")
-    box = np.array(box[:dim])
-    offset = HEADER.size
-    q = np.frombuffer(data, "<u2", n * dim, offset).reshape(n, dim)
-    offset += 2 * n * dim
-    raw = np.frombuffer(data, np.uint8, n * (dim - 1), offset).reshape(n, dim - 1)
-    angle = raw[:, 0] * (2.0 * math.pi / 256.0)
-    if dim == 2:
-        headings = np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    else:
-        z = raw[:, 1] / 127.5 - 1.0
-        rho = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-        headings = np.stack([rho * np.cos(angle), rho * np.sin(angle), z], axis=1)
-    return {"dim": dim, "n": n, "step": int(step), "phi": phi, "running": bool(flags & RUNNING),
-            "box": box, "positions": (q + 0.5) * (box / 65536.0), "headings": headings}

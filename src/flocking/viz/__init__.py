@@ -12,7 +12,7 @@ always drawn on matplotlib's Agg canvas, so no display is ever needed for them.
 from .live import LiveView
 from .movie import after_run, write_movie, write_picture, write_plots
 from .notebook import animate, frame_png, trajectory_html, trajectory_mp4
-from .render import Scene, plot_frame
+from .scene import Scene, plot_frame
 
 __all__ = ["LiveView", "Scene", "after_run", "animate", "frame_png", "plot_frame", "trajectory_html",
            "trajectory_mp4", "write_movie", "write_picture", "write_plots"]

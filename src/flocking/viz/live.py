@@ -115,6 +115,6 @@ class LiveView(Writer):
 
 
 def _scene(frame, parameters, theme, size, color="auto"):
-    from .render import Scene
+    from .scene import Scene
 
     return Scene.for_frame(frame, parameters, theme=theme, size=size, dpi=100, pyplot=True, color=color).draw(frame)

@@ -21,7 +21,8 @@ from ..model import ParameterError
 from . import style as house
 from .colors import get_theme
 from .extensions import check_color
-from .render import Scene, check_style
+from .particles import check_style
+from .scene import Scene
 
 FORMATS = (".mp4", ".gif")
 #: Quality of movies (x264's constant rate factor: lower is better and larger).

@@ -23,7 +23,7 @@ import tempfile
 import numpy as np
 
 from .movie import encode_mp4, fix_density_scale, open_run, select_frames, write_movie
-from .render import Scene
+from .scene import Scene
 
 #: x264 quality of notebook videos: smaller files than movies (CRF 18), still sharp enough.
 NOTEBOOK_CRF = 30

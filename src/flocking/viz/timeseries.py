@@ -20,7 +20,7 @@ import warnings
 import numpy as np
 
 from . import style as house
-from .render import describe
+from .caption import describe
 
 
 def with_error(value: float, error: float) -> str:
