@@ -42,8 +42,8 @@ import numpy as np
 from flocking import Frame, Model, Simulation, State
 from flocking.analysis import PolarOrder
 from flocking.state import frame_arrays
+from flocking.viz import plot_frame
 from flocking.viz import style as house
-from flocking.viz.render import plot_frame
 
 BASE = dict(density=2.0, speed=0.5, noise_type="vectorial", radius=1.0)
 BAND_BOX = (256.0, 32.0)
