@@ -3,11 +3,11 @@ examples/README.md quotes, finds the right neighbour pairs and bands."""
 
 from __future__ import annotations
 
-import importlib.util
 import pathlib
 
 import numpy as np
 import pytest
+from scripts import load_script
 
 from flocking.config import RunConfig
 from flocking.trajectory import Frame
@@ -17,14 +17,7 @@ SWEEPS = sorted(p for p in EXAMPLES.glob("*.toml") if "[grid]" in p.read_text())
 RUNS = sorted(set(EXAMPLES.glob("*.toml")) - set(SWEEPS))
 
 
-def _load_measure():
-    spec = importlib.util.spec_from_file_location("example_measure", EXAMPLES / "measure.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-measure = _load_measure()
+measure = load_script("examples/measure.py")
 
 
 @pytest.mark.parametrize("path", RUNS, ids=lambda p: p.name)

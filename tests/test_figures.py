@@ -1,17 +1,15 @@
 """Committed figures are current: each is listed in docs/figures.toml and made from inputs that
 have not changed since (tools/figures.py); the tool itself finds every kind of change."""
 
-import importlib.util
 import os
 import re
 import subprocess
 
 import pytest
+from scripts import load_script
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-spec = importlib.util.spec_from_file_location("figures", os.path.join(ROOT, "tools", "figures.py"))
-figures = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(figures)
+figures = load_script("tools/figures.py")
 
 IMAGES = (".png", ".svg", ".gif", ".jpg", ".pdf")
 

@@ -4,27 +4,16 @@ never stopped."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import os
 
 import numpy as np
 import pytest
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def example():
-    path = os.path.join(HERE, "..", "examples", "finite_size.py")
-    spec = importlib.util.spec_from_file_location("finite_size_example", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from scripts import load_script
 
 
 @pytest.mark.slow
 def test_finite_size_study_runs_resumes_and_draws(tmp_path):
-    fs = example()
+    fs = load_script("examples/finite_size.py")
 
     def argv(name):
         return ["--sizes", "6,8", "--noises", "0.2,0.8", "--replicas", "3", "--steps", "90", "--equilibrate", "30",

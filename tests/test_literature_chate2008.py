@@ -4,26 +4,16 @@ script's own functions on small boxes and short runs (about a minute on 2 cores)
 
 from __future__ import annotations
 
-import importlib.util
-import os
-
 import numpy as np
 import pytest
+from scripts import load_script
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def load():
-    path = os.path.join(HERE, "..", "examples", "chate2008.py")
-    spec = importlib.util.spec_from_file_location("chate2008_example", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+SCRIPT = "examples/chate2008.py"
 
 
 @pytest.mark.slow
 def test_ordered_phase_has_giant_number_fluctuations():
-    chate = load()
+    chate = load_script(SCRIPT)
     gnf = chate.fluctuations(64.0, steps=3000, equilibrate=1000, every=100)
     assert gnf["frames"] == 30 and gnf["fitted"].all()
     assert gnf["order"] > 0.6  # the ordered phase (0.75 measured)
@@ -45,7 +35,7 @@ def test_ordered_phase_has_giant_number_fluctuations():
 
 @pytest.mark.slow
 def test_bands_travel_with_a_steep_front_and_an_exponential_tail():
-    chate = load()
+    chate = load_script(SCRIPT)
     run = chate.bands(256.0, steps=2000, equilibrate=4000, every=50)
     assert run["frames"] == 40
     # a band (z >= 5 against a homogeneous state, DensityProfile) in most frames (all 40
@@ -70,14 +60,14 @@ def test_bands_travel_with_a_steep_front_and_an_exponential_tail():
                                   ["--gnf-every", "0"], ["--band-every", "-1"]])
 def test_the_script_refuses_runs_it_cannot_measure(argv, capsys):
     with pytest.raises(SystemExit) as exit_:
-        load().parse(argv)
+        load_script(SCRIPT).parse(argv)
     assert exit_.value.code == 2
     last = capsys.readouterr().err.strip().splitlines()[-1]  # one line: the option and why
     assert f"error: {argv[0]}: must" in last, last
 
 
 def test_the_script_defaults_are_the_documented_run():
-    args = load().parse([])
+    args = load_script(SCRIPT).parse([])
     assert (args.gnf_box, args.gnf_steps, args.gnf_equilibrate, args.gnf_every) == (128.0, 8000, 2000, 100)
     assert args.band_boxes == [256.0, 512.0]
     assert (args.band_steps, args.band_equilibrate, args.band_every) == (4000, 8000, 50)

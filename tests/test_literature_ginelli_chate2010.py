@@ -2,24 +2,13 @@
 version of its two comparisons: metric neighbours form bands where Voronoi neighbours
 order homogeneously, and the Voronoi model orders at low noise and not at high noise."""
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from scripts import load_script
 
-ROOT = Path(__file__).resolve().parent.parent
-
-
-def load_example():
-    spec = importlib.util.spec_from_file_location("ginelli_chate2010", ROOT / "examples" / "ginelli_chate2010.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-example = load_example()
+example = load_script("examples/ginelli_chate2010.py")
 
 
 def test_contrast_is_zero_less_shot_noise_for_equal_slabs():

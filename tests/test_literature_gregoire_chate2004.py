@@ -13,27 +13,16 @@ time for means, block jackknife for G): three of them.
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import os
 
 import numpy as np
 import pytest
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def example():
-    path = os.path.join(HERE, "..", "examples", "gregoire_chate2004.py")
-    spec = importlib.util.spec_from_file_location("gregoire_chate2004_example", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from scripts import load_script
 
 
 @pytest.mark.slow
 def test_a_run_at_the_threshold_switches_between_two_states():
-    gc = example()
+    gc = load_script("examples/gregoire_chate2004.py")
     run = gc.switching(16.0, 0.615, steps=40_000, equilibrate=2_000, seed=2004, bins=50)
     assert run["n"] == 512 and run["counts"].sum() == 38_000
     # the cut between the two states lies between their peaks (0.19 and 0.75 in the full run)
@@ -53,7 +42,7 @@ def test_a_run_at_the_threshold_switches_between_two_states():
 
 @pytest.mark.slow
 def test_the_binder_cumulant_dips_at_the_threshold():
-    gc = example()
+    gc = load_script("examples/gregoire_chate2004.py")
     res = gc.binder_curve(16.0, gc.NOISES, steps=20_000, equilibrate=4_000, seed=2004)  # the script's L = 16
     g, err = np.array(res["binder"]), np.array(res["binder_error"])
     assert res["noise"][0] == 0.605 and res["noise"][-1] == 0.63

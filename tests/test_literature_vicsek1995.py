@@ -4,23 +4,11 @@ measured errors. 88 CPU-seconds (2.7 min of wall clock on the project's 2 shared
 
 from __future__ import annotations
 
-import importlib.util
-import pathlib
-
 import numpy as np
 import pytest
+from scripts import load_script
 
-SCRIPT = pathlib.Path(__file__).resolve().parents[1] / "examples" / "vicsek1995.py"
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("example_vicsek1995", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-vicsek = _load()
+vicsek = load_script("examples/vicsek1995.py")
 
 REPLICAS, STEPS, DISCARD = 4, 3000, 1000
 NOISES = (1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 2 * np.pi)
