@@ -58,6 +58,12 @@ OUTPUTS = {
 }
 
 
+def written_stems() -> tuple[str, ...]:
+    """The stems of every file the command writes besides ``analysis.json`` (each as
+    ``.csv`` and as a figure): what a run folder may hold of an earlier analysis."""
+    return tuple(stem for stem, *_ in (*OUTPUTS.values(), *HISTOGRAMS.values()))
+
+
 def parse_only(text: str | None) -> list[str]:
     """The quantities asked for; every one when ``text`` is empty (:data:`OPTIONAL` ones are
     then kept only where the run records them: see :func:`recorded`)."""

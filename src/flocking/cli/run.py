@@ -117,11 +117,10 @@ def written_by_flocking(name: str) -> bool:
     >>> [written_by_flocking(x) for x in ("snapshot.png", "msd.csv", "config.toml.812.tmp", "notes.txt")]
     [True, True, True, False]
     """
-    from .analyze import HISTOGRAMS, OUTPUTS
+    from .analyze import written_stems
 
     extensions = (".csv", *(f".{e}" for e in opt.FORMATS))
-    stems = [stem for stem, *_ in (*OUTPUTS.values(), *HISTOGRAMS.values())]
-    names = set(RUN_FILES) | {stem + ext for stem in stems for ext in extensions}
+    names = set(RUN_FILES) | {stem + ext for stem in written_stems() for ext in extensions}
     for name_ in names:
         ext = os.path.splitext(name_)[1]
         if re.fullmatch(re.escape(name_) + r"(\.\d+)?\.tmp", name) or name == f".{name_}.part{ext}":
