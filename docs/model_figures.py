@@ -138,7 +138,9 @@ def draw_vision(args) -> None:
     check_engine(offsets, headings, classes)
 
     t = house.get_theme(args.theme)
-    fig, ax = house.figure(args.size, t)
+    width, height, _ = house.resolve_size(args.size)
+    # a round picture beside its legend: no taller than that pair is wide, or a third is blank
+    fig, ax = house.figure((width, min(height, 0.7 * width)), t)
     scale = house.fontsize(fig) / 8.0  # line widths and marks grow with the text
     colors = {SEEN: house.palette(t)[0], HIDDEN: house.palette(t)[1], OUT: t.edge}
     degrees = math.degrees(VISION)
@@ -167,10 +169,12 @@ def draw_vision(args) -> None:
     handles = [Line2D([], [], ls="none", marker=r"$\rightarrow$", ms=9 * scale, color=colors[kind],
                       label=f"{labels[kind]} ({np.count_nonzero(classes == kind)})") for kind in labels]
     house.legend(ax, t, handles=handles, loc="center left", bbox_to_anchor=(1.0, 0.5), handletextpad=0.3)
-    lim = SPREAD + 0.12
-    ax.update_datalim([(-lim, -lim), (lim, lim)])
-    ax.autoscale_view(tight=True)
-    ax.set_aspect("equal", adjustable="datalim")  # the box keeps its place beside the legend
+    # the drawn neighbours' extent (and the circle's), not the box they were drawn in
+    low = np.minimum(offsets.min(axis=0), -RADIUS) - 0.15
+    high = np.maximum(offsets.max(axis=0), RADIUS) + 0.15
+    ax.set(xlim=(low[0], high[0]), ylim=(low[1], high[1]))
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_anchor("E")  # a narrower box stays against its legend, which the layout placed
     ax.set_axis_off()
     house.title(fig, "The vision cone", f"$R$ = {RADIUS:g} · $\\theta_v$ = {VISION:g} rad "
                 f"({degrees:.0f}°) · classes checked against a step of the engine")
