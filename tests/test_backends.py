@@ -292,6 +292,7 @@ np.save(sys.argv[1], np.concatenate(out))
 """
 
 
+@pytest.mark.slow  # a minute of compiling: in the slow stage, which CI runs on every change
 def test_freshly_compiled_and_cached_kernels_give_the_same_bits(tmp_path):
     # kernels compiled in this process and kernels loaded from numba's cache must round
     # alike: a first run and a second run of the same seed are bitwise identical

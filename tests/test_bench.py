@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from flocking import Model, State, bench
+from flocking import Model, State
+from flocking import throughput as bench
 from flocking.cli import main
 
 REFS = os.path.join(os.path.dirname(__file__), os.pardir, "benchmarks")

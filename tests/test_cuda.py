@@ -30,17 +30,17 @@ CASES = {
     "2d": (dict(), 2, "float64"),
     "2d-delay": (dict(delay=2), 3, "float64"),
     "2d-topological-rectangular": (dict(neighbours="topological", k=3, box=(4.0, 6.5)), 2, "float64"),
-    "2d-box-below-3R": (dict(box=2.5, radius=1.0), 2, "float64"),
     "2d-clustered": (dict(box=8.0, noise=0.2), 2, "float64"),
     "3d-topological-delay": (dict(dim=3, neighbours="topological", k=4, delay=2), 3, "float64"),
     "2d-float32": (dict(), 2, "float32"),
-    # one species with its own speed: no extension, and the speed is the state's, not model.speed
-    "2d-one-species-speed": (dict(species=[{"fraction": 1.0, "speed": 0.3}]), 2, "float64"),
 }
 
 #: more cases, each option already covered above in another combination (``-m slow``: the
 #: simulator takes minutes for all of them on two cores)
 MORE_CASES = {
+    "2d-box-below-3R": (dict(box=2.5, radius=1.0), 2, "float64"),
+    # one species with its own speed: no extension, and the speed is the state's, not model.speed
+    "2d-one-species-speed": (dict(species=[{"fraction": 1.0, "speed": 0.3}]), 2, "float64"),
     "2d-vectorial-forward": (dict(noise_type="vectorial", update="forward"), 2, "float64"),
     "2d-alignment-uniform-speeds": (dict(alignment=0.5, speeds="uniform"), 2, "float64"),
     "2d-later-step": (dict(noise_type="vectorial", noise=0.8), 1, "float64"),
@@ -54,8 +54,7 @@ MORE_CASES = {
 
 #: extension cases of tests/test_extensions.py as ``name:dim:precision``, each against the
 #: reference under the simulator: every extension, in 2D and 3D, in the default run ...
-EXTENDED = ["all-with-delay:2:float64", "all-with-delay:3:float64", "three-species:2:float64", "informed:2:float64",
-            "topological:2:float64", "box-below-3R:3:float64", "all-with-delay:2:float32"]
+EXTENDED = ["all-with-delay:2:float64", "all-with-delay:3:float64", "topological:2:float64", "all-with-delay:2:float32"]
 #: ... and every other combination with ``-m slow``
 MORE_EXTENDED = [f"{name}:{dim}:float64" for dim in (2, 3) for name in EXTENSIONS
                  if f"{name}:{dim}:float64" not in EXTENDED and not (dim == 3 and name == "chirality")] + [

@@ -30,44 +30,49 @@ import flocking.config
 from flocking.backends.cuda import CUDABackend
 from flocking.fields import Grid, bin_sums
 
-def states():
+def states(keys, draws):
     out = {}
-    for precision in ("float64", "float32"):
-        for kind in ("random", "aligned"):
-            for dim, kw in ((2, dict(box=(6.0, 4.5), delay=1)), (3, dict(box=(5.0, 4.0, 3.0)))):
-                model = flocking.Model(n=50, dim=dim, seed=11, noise=0.5, **kw)
-                a = CUDABackend(model, kind, precision=precision)
-                b = CUDABackend(model, getattr(flocking.State, kind)(model), precision=precision)
-                sa, sb = a.state, b.state
-                same = bool((sa.positions == sb.positions).all() and (sa.headings == sb.headings).all())
-                first = [a.polar_order_now(), b.polar_order_now()]
-                steps = bool((a.advance(2) == b.advance(2)).all() and (a.state.headings == b.state.headings).all())
-                out[f"{kind}:{dim}:{precision}"] = dict(same=same, steps=steps, first=first)
-    model = flocking.Model(n=50, box=6.0, seed=4, noise=0.5)
-    sim = flocking.Simulation(model, "aligned", backend="cuda")
-    out["simulation"] = [sim.polar_order[0], sim.backend.name]
-    ens = flocking.Ensemble([model, model.replace(seed=9)], backend="cuda")
-    host = [flocking.State.random(m).polar_order() for m in ens.models]
-    out["ensemble"] = [float(abs(ens._last[r] - host[r])) for r in range(2)]
+    for key in keys:
+        kind, dim, precision = key.split(":")
+        kw = dict(box=(6.0, 4.5), delay=1) if dim == "2" else dict(box=(5.0, 4.0, 3.0))
+        model = flocking.Model(n=50, dim=int(dim), seed=11, noise=0.5, **kw)
+        a = CUDABackend(model, kind, precision=precision)
+        b = CUDABackend(model, getattr(flocking.State, kind)(model), precision=precision)
+        sa, sb = a.state, b.state
+        same = bool((sa.positions == sb.positions).all() and (sa.headings == sb.headings).all())
+        first = [a.polar_order_now(), b.polar_order_now()]
+        steps = bool((a.advance(2) == b.advance(2)).all() and (a.state.headings == b.state.headings).all())
+        out[key] = dict(same=same, steps=steps, first=first)
+    if draws:
+        model = flocking.Model(n=50, box=6.0, seed=4, noise=0.5)
+        sim = flocking.Simulation(model, "aligned", backend="cuda")
+        out["simulation"] = [sim.polar_order[0], sim.backend.name]
+        ens = flocking.Ensemble([model, model.replace(seed=9)], backend="cuda")
+        host = [flocking.State.random(m).polar_order() for m in ens.models]
+        out["ensemble"] = [float(abs(ens._last[r] - host[r])) for r in range(2)]
     return out
 
-def fields():
+FIELD_MODELS = {"2d": {}, "3d": dict(dim=3, box=5.0),
+                "nematic-species": dict(alignment_rule="nematic",
+                                        species=[{"fraction": 0.4}, {"fraction": 0.6, "name": "B"}])}
+
+def fields(keys, replicas):
     out = {}
-    for precision in ("float64", "float32"):
-        for name, kw in (("2d", {}), ("3d", dict(dim=3, box=5.0)),
-                         ("nematic-species", dict(alignment_rule="nematic",
-                                                  species=[{"fraction": 0.4}, {"fraction": 0.6, "name": "B"}]))):
-            model = flocking.Model(**{"n": 60, "box": 6.0, "seed": 3, **kw})
-            gpu = CUDABackend(model, "random", precision=precision)
-            gpu.advance(1)
-            grid = Grid.of(model, 1.4)
-            sums = gpu.fields(grid)
-            state = gpu.state
-            oracle = bin_sums(grid, state)
-            out[f"{name}:{precision}"] = dict(
-                counts=bool((sums[:, 0] == oracle[:, 0]).all()), diff=float(np.abs(sums - oracle).max()),
-                total=float(sums[:, 0].sum()),
-                pol=float(np.abs(sums[:, 1:1 + model.dim].sum(axis=(0, 2)) - state.headings.sum(axis=0)).max()))
+    for key in keys:
+        name, precision = key.split(":")
+        model = flocking.Model(**{"n": 60, "box": 6.0, "seed": 3, **FIELD_MODELS[name]})
+        gpu = CUDABackend(model, "random", precision=precision)
+        gpu.advance(1)
+        grid = Grid.of(model, 1.4)
+        sums = gpu.fields(grid)
+        state = gpu.state
+        oracle = bin_sums(grid, state)
+        out[key] = dict(
+            counts=bool((sums[:, 0] == oracle[:, 0]).all()), diff=float(np.abs(sums - oracle).max()),
+            total=float(sums[:, 0].sum()),
+            pol=float(np.abs(sums[:, 1:1 + model.dim].sum(axis=(0, 2)) - state.headings.sum(axis=0)).max()))
+    if not replicas:
+        return out
     base = flocking.Model(n=40, box=5.0, seed=1)
     ens = flocking.Ensemble([base, base.replace(seed=2)], backend="cuda")
     grid = Grid.of(base, 1.0)
@@ -152,9 +157,9 @@ def stubbed(n):
 job = json.loads(sys.argv[1])
 out = {}
 if "states" in job:
-    out["states"] = states()
+    out["states"] = states(*job["states"])
 if "fields" in job:
-    out["fields"] = fields()
+    out["fields"] = fields(*job["fields"])
 if "copies" in job:
     out["copies"] = copies()
 if "stubbed" in job:
@@ -180,17 +185,40 @@ def simulate(*jobs: dict) -> dict:
     return out
 
 
+#: the default suite's states and fields (kind:dim:precision, model:precision); the other
+#: combinations run in the slow stage (``-m slow``), where CI runs them on every change
+STATES = ["random:2:float64", "aligned:3:float32"]
+MORE_STATES = [f"{k}:{d}:{p}" for k in ("random", "aligned") for d in (2, 3) for p in ("float64", "float32")
+               if f"{k}:{d}:{p}" not in STATES]
+FIELDS = ["2d:float64", "nematic-species:float32"]
+MORE_FIELDS = [f"{n}:{p}" for n in ("2d", "3d", "nematic-species") for p in ("float64", "float32")
+               if f"{n}:{p}" not in FIELDS]
+
+
 @pytest.fixture(scope="module")
 def simulated():
-    return simulate({"states": True}, {"fields": True, "copies": True})
+    return simulate({"states": [STATES, True]}, {"fields": [FIELDS, True], "copies": True})
 
 
-@pytest.mark.parametrize("key", [f"{k}:{d}:{p}" for k in ("random", "aligned") for d in (2, 3)
-                                 for p in ("float64", "float32")])
-def test_device_made_state_is_the_hosts_bit_for_bit(simulated, key):
-    got = simulated["states"][key]
+@pytest.fixture(scope="module")
+def simulated_more():
+    return simulate({"states": [MORE_STATES, False]}, {"fields": [MORE_FIELDS, False]})
+
+
+def check_state(got: dict) -> None:
     assert got["same"] and got["steps"]
     assert got["first"][0] == got["first"][1]
+
+
+@pytest.mark.parametrize("key", STATES)
+def test_device_made_state_is_the_hosts_bit_for_bit(simulated, key):
+    check_state(simulated["states"][key])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", MORE_STATES)
+def test_more_device_made_states_are_the_hosts_bit_for_bit(simulated_more, key):
+    check_state(simulated_more["states"][key])
 
 
 def test_simulation_and_ensemble_draw_on_the_device(simulated):
@@ -199,12 +227,21 @@ def test_simulation_and_ensemble_draw_on_the_device(simulated):
     assert max(simulated["states"]["ensemble"]) < 1e-14
 
 
-@pytest.mark.parametrize("key", [f"{n}:{p}" for n in ("2d", "3d", "nematic-species") for p in ("float64", "float32")])
-def test_device_fields_equal_the_oracle(simulated, key):
-    got = simulated["fields"][key]
+def check_fields(got: dict, key: str) -> None:
     assert got["counts"] and got["total"] == 60.0
     assert got["diff"] < (1e-12 if key.endswith("float64") else 1e-5)  # float32: the state is renormalised
     assert got["pol"] < (1e-12 if key.endswith("float64") else 1e-5)
+
+
+@pytest.mark.parametrize("key", FIELDS)
+def test_device_fields_equal_the_oracle(simulated, key):
+    check_fields(simulated["fields"][key], key)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", MORE_FIELDS)
+def test_more_device_fields_equal_the_oracle(simulated_more, key):
+    check_fields(simulated_more["fields"][key], key)
 
 
 def test_states_come_back_in_pieces_bit_for_bit(simulated):

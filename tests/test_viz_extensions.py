@@ -11,13 +11,14 @@ from click.testing import CliRunner
 import flocking
 from flocking.cli import main
 from flocking.model import ParameterError
+from flocking.space import Space
 from flocking.viz.colors import THEMES
 from flocking.viz.density import DensityField
-from flocking.viz.extensions import obstacle_images, species_colors
 from flocking.viz.live import frame_of
-from flocking.viz.perspective import perspective_image
 from flocking.viz.particles import box_coordinates
+from flocking.viz.perspective import perspective_image
 from flocking.viz.scene import Scene, plot_frame
+from flocking.viz.style import species_colors
 
 BOX = (20.0, 20.0)
 OBSTACLE = [4.0, 3.0, 3.0]  # centre (centred coordinates), radius
@@ -91,7 +92,8 @@ def test_an_obstacle_across_a_periodic_side_shows_on_both_sides():
     rgb = scene.draw(frame).rgb()
     obstacle = THEMES["light"].obstacle
     assert near(pixel(scene, rgb, 9.5, 0.0), obstacle) and near(pixel(scene, rgb, -9.5, 0.0), obstacle)
-    np.testing.assert_allclose(obstacle_images([[9.0, 0.0, 2.0]], BOX, (True, False)), [[9.0, 0.0, 2.0]])
+    walled_x = Space(BOX, (True, False), [[9.0, 0.0, 2.0]], (-10.0, -10.0))  # no image across a wall
+    np.testing.assert_allclose(walled_x.obstacle_images(), [[9.0, 0.0, 2.0]])
 
 
 @pytest.mark.parametrize("theme", ["dark", "light"])
@@ -138,7 +140,7 @@ def test_plot_frame_on_given_axes_draws_walls_obstacles_and_a_species_legend():
 def test_density_is_cut_at_walls_and_counts_only_free_space():
     frame = grid_frame(spacing=0.25)
     shape = (80, 80)
-    holes = obstacle_images(frame.obstacles, BOX, frame.walls)
+    holes = Space.of_frame(frame).obstacle_images()
     field = DensityField(frame.positions, frame.headings, BOX, shape, walls=frame.walls, obstacles=holes)
     rho = 16.0  # particles per unit area on the grid
     free = field.free

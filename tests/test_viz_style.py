@@ -171,7 +171,7 @@ def test_polar_order_figure_shows_the_error_of_the_mean_not_the_spread(theme):
 
 
 def test_the_throughput_figure_is_in_the_house_style_and_names_machine_and_threads(tmp_path, monkeypatch):
-    from flocking import bench
+    from flocking import throughput as bench
 
     rows = [dict(group="2d-metric", n=n, init=init, implementation=impl, threads=2, repeats=3,
                  particle_steps_per_s=rate * n ** 0.01)

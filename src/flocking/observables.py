@@ -44,10 +44,19 @@ def extra_names(model) -> tuple[str, ...]:
 
 
 def moment_width(model) -> int:
-    """Length of a vector of moment sums: ``dim`` per species, then the nematic products
-    (2 in 2D, 6 in 3D) if the model records the nematic order."""
-    nematic = (2 if model.dim == 2 else 6) if model.alignment_rule == "nematic" else 0
-    return model.dim * len(model.species_counts) + nematic
+    """Length of ``model``'s vector of moment sums (:func:`sums_width`)."""
+    return sums_width(model.dim, len(model.species_counts), model.alignment_rule == "nematic")
+
+
+def sums_width(dim: int, species: int, nematic: bool) -> int:
+    """Length of a vector of moment sums, the layout :func:`moment_sums` writes and both
+    backends' kernels fill: ``dim`` per species, then the nematic products (2 in 2D, 6 in
+    3D) if the order recorded is nematic.
+
+    >>> sums_width(2, 1, False), sums_width(3, 2, True)
+    (2, 12)
+    """
+    return dim * species + ((2 if dim == 2 else 6) if nematic else 0)
 
 
 def moment_sums(model, headings: np.ndarray) -> np.ndarray:

@@ -51,6 +51,7 @@ import typing
 import numpy as np
 from numba import cuda
 
+from ..observables import sums_width
 from ..rules import compile as compile_rules
 from ..rules import rebind
 from . import cuda_sort
@@ -101,11 +102,6 @@ def replica_dtype(real) -> np.dtype:
     ``epsilon`` and constant speed ``v0``."""
     return np.dtype([("seed", np.uint64), ("tau", np.int64), ("eta", real), ("epsilon", real), ("v0", real)],
                     align=True)
-
-
-def moment_width(dim: int, species: int, nematic: bool) -> int:
-    """Moment sums a step: ``dim`` per species, then the nematic products (2D: 2, 3D: 6)."""
-    return dim * species + ((2 if dim == 2 else 6) if nematic else 0)
 
 
 # The values of a build: the functions below read them as globals, and build() compiles
@@ -436,7 +432,7 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     R = compile_rules("cuda", real)
     EXT, CPL, NEM, CONE, COH = features
     DIM, K, KA, NSPECIES, DELAY = dim, k, max(k, 1), species, delay
-    WIDTH = moment_width(dim, species, NEM)
+    WIDTH = sums_width(dim, species, NEM)
     BLOCK = launch.block
     sort = cuda_sort.build(launch)
     HSIZE, PMAX = sort.hist_size, sort.max_passes

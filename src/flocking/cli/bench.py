@@ -24,7 +24,7 @@ def bench(full, refs, out, repeats, groups, no_memory):
     cKDTree + sparse-matrix approach and on pyvicsek's C++ kernel (when installed, same
     thread count); the speed-up column is flocking's throughput over theirs.
     """
-    from .. import bench as suite
+    from .. import throughput as suite
 
     out = out or "bench-results"
     opt.check_folder("out", out)

@@ -1,4 +1,5 @@
-"""Colours: themes, the heading -> colour map, and the colour-wheel key.
+"""Colours: themes, the heading -> colour map, the colour-wheel key, and the species'
+colours.
 
 A heading's colour is its angle on a hue circle of constant lightness and chroma in
 OKLab, a perceptually uniform colour space: equal turns look like equal changes of
@@ -17,6 +18,9 @@ shows in how the local mean heading turns off the flock's mean heading
 (:func:`deviation_colors`): on the same disc as 3D's key, grey along the mean, the hue
 for the direction of the turn.
 
+Species take the house palette's colours in order (:func:`.style.species_colors`);
+:func:`choose_color` picks them by default for a frame with several species.
+
 >>> rgb = heading_colors(np.array([[1.0, 0.0], [-1.0, 0.0]]), THEMES["dark"])
 >>> rgb.round(2).tolist()
 [[0.94, 0.54, 0.49], [0.08, 0.75, 0.84]]
@@ -29,6 +33,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+
+from ..checks import ParameterError
+
+#: What particles can be coloured by: ``auto`` is ``species`` for a frame with several
+#: species, else ``deviation`` (the angle to the mean heading) in 3D and ``heading`` in 2D.
+COLORS = ("auto", "heading", "species", "deviation")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -191,3 +201,22 @@ def deviation_colors(headings: np.ndarray, theme: Theme, mean=None) -> np.ndarra
     turn alike share a colour: the correlated fluctuations of an ordered flock."""
     angle, direction = deviation_parts(headings, mean)
     return angle_colors(direction, theme, np.clip(angle / DEVIATION_FULL, 0.0, 1.0))
+
+
+def check_color(color: str) -> str:
+    """``color`` if it is one of :data:`COLORS`, else a one-line error naming it."""
+    if color not in COLORS:
+        raise ParameterError(f"color: must be one of {', '.join(COLORS)} (got {color!r})")
+    return color
+
+
+def choose_color(color: str, types, dim: int = 2) -> str:
+    """Resolve ``auto`` for a ``dim``-dimensional frame whose species are named ``types``.
+
+    >>> choose_color("auto", ("A",), 2), choose_color("auto", ("A",), 3), choose_color("auto", ("A", "B"), 3)
+    ('heading', 'deviation', 'species')
+    """
+    color = check_color(color)
+    if color == "auto":
+        return "species" if len(types) > 1 else ("deviation" if dim == 3 else "heading")
+    return color

@@ -36,8 +36,8 @@ import math
 
 import numpy as np
 
+from ..space import Space
 from .colors import Theme, angle_colors
-from .extensions import free_mask
 
 #: The density kernel holds this many particles on average (relative noise 1/5).
 DENSITY_COUNT = 25.0
@@ -125,7 +125,7 @@ class DensityField:
         count = np.bincount(cell, minlength=nx * ny).astype(float).reshape(ny, nx)
         sx = np.bincount(cell, weights=headings[:, 0], minlength=nx * ny).reshape(ny, nx)
         sy = np.bincount(cell, weights=headings[:, 1], minlength=nx * ny).reshape(ny, nx)
-        self.free = free_mask(np.zeros((0, 3)) if obstacles is None else obstacles, (lx, ly), shape)
+        self.free = _free_mask(np.zeros((0, 3)) if obstacles is None else obstacles, (lx, ly), shape)
         per_bin = max(len(positions), 1) / max(int(self.free.sum()), 1)
         widest = max(shape) / 32  # sparse frames stay noisy rather than become a haze
         self.sigma_density = min(self.kernel_width(DENSITY_COUNT, per_bin), widest)
@@ -227,3 +227,16 @@ def density_colormap(theme: Theme):
 
     grey = angle_colors(0.0, theme, 0.0, ink=True)
     return LinearSegmentedColormap.from_list(f"density-{theme.name}", [theme.background, tuple(grey)])
+
+
+def _free_mask(obstacles: np.ndarray, box_lengths, shape) -> np.ndarray:
+    """``shape = (rows, columns)`` booleans of a 2D grid (rows downward): whether each
+    bin's centre lies outside every obstacle (``obstacles`` already with their images, so
+    no further image is taken: :meth:`flocking.space.Space.in_obstacle` with walls)."""
+    ny, nx = shape
+    lx, ly = float(box_lengths[0]), float(box_lengths[1])
+    x = ((np.arange(nx) + 0.5) / nx - 0.5) * lx
+    y = (0.5 - (np.arange(ny) + 0.5) / ny) * ly
+    centres = np.stack(np.broadcast_arrays(x[None, :], y[:, None]), axis=-1)
+    space = Space((lx, ly), (True, True), np.asarray(obstacles, float).reshape(-1, 3), (-lx / 2, -ly / 2))
+    return ~space.in_obstacle(centres)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .colors import DEVIATION_FULL, get_theme, wheel_image
-from .extensions import species_colors
+from .style import species_colors
 
 #: Points per data unit of a key's axes at the narrowest (a key at least 9 font sizes
 #: wide, less the layout's padding, spans 4 units), in font sizes: text placed by it

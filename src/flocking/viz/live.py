@@ -54,7 +54,7 @@ class LiveView(Writer):
 
     def __init__(self, every: int = 10, theme: str = "dark", max_fps: float = 30.0, size: float = 6.0,
                  stream=None, color: str = "auto"):
-        from .extensions import check_color
+        from .colors import check_color
 
         self.every = max(1, int(every))
         self.theme = theme

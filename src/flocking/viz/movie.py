@@ -19,8 +19,7 @@ import numpy as np
 
 from ..model import ParameterError
 from . import style as house
-from .colors import get_theme
-from .extensions import check_color
+from .colors import check_color, get_theme
 from .particles import check_style
 from .scene import Scene
 

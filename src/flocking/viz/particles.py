@@ -24,10 +24,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..model import ParameterError
+from ..space import Space
 from . import style as house
-from .colors import deviation_colors, get_theme, heading_colors
+from .colors import choose_color, deviation_colors, get_theme, heading_colors
 from .density import DensityField, density_image, density_scale, grid_shape
-from .extensions import choose_color, obstacle_images, species_colors
 from .local import local_headings
 from .perspective import glyph_length, perspective_image
 from .rulers import make_rulers, place_rulers, ruler_zoom
@@ -90,7 +90,7 @@ def frame_density(frame, pixels: int) -> DensityField:
     walls, obstacles and species."""
     box = frame.box_lengths
     return DensityField(frame.positions, frame.headings, box, grid_shape(box, pixels), walls=frame.walls,
-                        obstacles=obstacle_images(frame.obstacles, box, frame.walls), typeid=frame.typeid,
+                        obstacles=Space.of_frame(frame).obstacle_images(), typeid=frame.typeid,
                         types=len(frame.types))
 
 
@@ -121,7 +121,7 @@ class FrameArtist:
         self.color = choose_color(color, frame.types, frame.dim)
         self.types = frame.types
         self.walls = tuple(frame.walls)
-        self.obstacles = obstacle_images(frame.obstacles, self.box, self.walls)
+        self.obstacles = Space.of_frame(frame).obstacle_images()
         self.arrow_scale = positive("arrow_scale", arrow_scale)
         self.azim, self.elev = float(azim), float(elev)
         self.density_max = None if density_max is None else positive("density_max", density_max)
@@ -145,7 +145,7 @@ class FrameArtist:
         """``(N, 3)`` RGB of the particles: their headings', their species' or their
         deviations' from the mean heading colours."""
         if self.color == "species":
-            return species_colors(len(self.types), self.theme)[frame.typeid]
+            return house.species_colors(len(self.types), self.theme)[frame.typeid]
         if self.color == "deviation":
             local = local_headings(frame.positions, frame.headings, self.box, self.walls)
             return deviation_colors(local, self.theme, mean=frame.headings.sum(axis=0))
@@ -158,7 +158,7 @@ class FrameArtist:
         if self.color != "species":
             return []
         return [Line2D([], [], ls="none", marker="s", color=tuple(c), label=name)
-                for name, c in zip(self.types, species_colors(len(self.types), self.theme))]
+                for name, c in zip(self.types, house.species_colors(len(self.types), self.theme))]
 
     def _boundaries(self) -> list:
         """Wall lines (a side of each wall axis) and obstacle discs above the particles (2D)."""
@@ -225,7 +225,7 @@ class FrameArtist:
         field = self.density_field(frame)
         if self.density_max is None:
             self.density_max = density_scale([field])
-        species = species_colors(len(self.types), self.theme) if self.color == "species" else None
+        species = house.species_colors(len(self.types), self.theme) if self.color == "species" else None
         self._show(density_image(field, self.theme, self.density_max, species), "bilinear")
 
     def _perspective(self, frame) -> None:

@@ -31,9 +31,8 @@ import numpy as np
 
 from . import style as house
 from .caption import as_parameters, describe, readout_lines, time_text
-from .colors import get_theme, theme_of_color
+from .colors import check_color, choose_color, get_theme, theme_of_color
 from .density import GAMMA, DensityField, density_colormap, density_ticks
-from .extensions import check_color, choose_color
 from .keys import deviation_key, heading_key, species_key
 from .particles import FrameArtist, check_style, choose_style, frame_density, positive
 

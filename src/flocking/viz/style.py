@@ -85,6 +85,19 @@ def palette(theme="dark") -> tuple[str, ...]:
     return _PALETTES[get_theme(theme).name]
 
 
+def species_colors(count: int, theme="dark") -> np.ndarray:
+    """``(count, 3)`` RGB of ``count`` species: the palette's colours, in turn
+    (qualitative, chosen to read on both themes).
+
+    >>> species_colors(2, "light").round(3).tolist()
+    [[0.122, 0.373, 0.659], [0.82, 0.286, 0.357]]
+    """
+    from matplotlib.colors import to_rgb
+
+    colours = palette(theme)
+    return np.array([to_rgb(colours[s % len(colours)]) for s in range(count)]).reshape(-1, 3)
+
+
 def check_format(path: str | os.PathLike) -> str:
     """The format of ``path`` from its extension, refused unless it is one of :data:`FORMATS`."""
     ext = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")
