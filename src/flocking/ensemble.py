@@ -31,7 +31,6 @@ from typing import Any
 import numpy as np
 
 from . import backends
-from .backends.cuda import Engine, check_models, ensemble_key
 from .model import Model, ParameterError
 from .observables import extra_names, extra_observables
 from .simulation import Simulation, next_due
@@ -45,6 +44,8 @@ def groups(models: Sequence[Model]) -> list[list[int]]:
     >>> groups([a, a.replace(seed=3), a.replace(n=60), a.replace(noise=2.0)])
     [[0, 1, 3], [2]]
     """
+    from .backends.cuda import ensemble_key  # numba.cuda is imported only where it is used
+
     found: dict[tuple, list[int]] = {}
     for i, model in enumerate(models):
         found.setdefault(ensemble_key(model), []).append(i)
@@ -62,6 +63,8 @@ class Ensemble:
 
     def __init__(self, models: Sequence[Model], states: Sequence[State] | None = None, backend: str = "cuda",
                  precision: str = "float64", memories: Sequence[dict | None] | None = None):
+        from .backends.cuda import Engine, check_models
+
         models = list(models)
         check_models(models)
         if states is None:  # on the device where the replicas run there
