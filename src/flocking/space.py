@@ -26,6 +26,7 @@ neighbours see across them); :meth:`Space.in_obstacle` and
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Iterator, Sequence
 from typing import NamedTuple
@@ -52,9 +53,13 @@ def _wrap(x, length):
     return _R.wrap(x, length)
 
 
-#: :func:`flocking.rules.geometry.minimum_image` and ``wrap`` as NumPy ufuncs (broadcasting)
-minimum_image = numba.vectorize(["float64(float64, float64, float64)"], cache=True)(_minimum_image)
-wrap = numba.vectorize(["float64(float64, float64)"], cache=True)(_wrap)
+@functools.cache
+def _ufuncs() -> tuple:
+    """:func:`flocking.rules.geometry.minimum_image` and ``wrap`` as NumPy ufuncs
+    (broadcasting), made on first use: made at import, they cost every command that never
+    measures a distance a third of a second (loading them from numba's cache included)."""
+    return (numba.vectorize(["float64(float64, float64, float64)"], cache=True)(_minimum_image),
+            numba.vectorize(["float64(float64, float64)"], cache=True)(_wrap))
 
 
 class Pairs(NamedTuple):
@@ -165,7 +170,7 @@ class Space:
         """``b - a`` (broadcast over leading axes), folded to the nearest image along
         periodic axes; points must lie in the box."""
         d = np.asarray(b, dtype=np.float64) - np.asarray(a, dtype=np.float64)
-        return minimum_image(d, self.lengths, self.half)
+        return _ufuncs()[0](d, self.lengths, self.half)
 
     def distance(self, a: Sequence, b: Sequence) -> np.ndarray:
         """``|b - a|`` by :meth:`displacement`."""
@@ -177,7 +182,7 @@ class Space:
         along axes with walls are left as they are."""
         x = np.asarray(points, dtype=np.float64)
         origin = np.asarray(self.origin)
-        folded = wrap(x - origin, self.lengths) + origin
+        folded = _ufuncs()[1](x - origin, self.lengths) + origin
         return np.where(self.periodic, folded, x)
 
     def inside(self, points: Sequence) -> np.ndarray:
