@@ -55,11 +55,11 @@ def kind(param):
 
 def test_the_shared_choices_are_those_of_the_library():
     from flocking import backends
-    from flocking.viz import colors, extensions, particles, style
+    from flocking.viz import colors, particles, style
 
     assert options.THEMES == tuple(colors.THEMES)
     assert options.SIZES == tuple(style.SIZES) and options.FORMATS == style.FORMATS
-    assert options.COLORS == extensions.COLORS and options.DEFAULT_DPI == style.DPI
+    assert options.COLORS == colors.COLORS and options.DEFAULT_DPI == style.DPI
     assert set(options.BACKENDS) == set(backends.NAMES)
     assert long_options(COMMANDS["animate"])["--style"].type.choices == particles.STYLES
     for dpi in (9.9, 1000.1, float("nan")):
