@@ -231,7 +231,12 @@ STEPS = {
 }
 
 
-@pytest.mark.parametrize("name", list(STEPS))
+#: a variant compiled for this case alone (72 s of the default suite's cold start): in the
+#: slow stage; cohesion with Voronoi neighbours stays in the default one (the species case)
+SLOW_STEPS = {"walls-vision-cohesion-delay"}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_STEPS else n for n in STEPS])
 def test_cpu_step_agrees_with_the_reference(name):
     model = Model(**{"neighbours": "voronoi", "noise": 0.7, "seed": 11, **STEPS[name]})
     state = State.random(model)
