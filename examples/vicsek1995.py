@@ -117,6 +117,30 @@ def interval(samples: np.ndarray) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
+def power_law(ax, args, colours, name: str, x, res: dict, label: str, xlabel: str, title: str) -> None:
+    """The panel of exponent ``name`` in log-log form: the fitted points ``res["mean"]``
+    against ``x`` with their errors, our fit (``res["fit"]``: the exponent first, the log of
+    the amplitude last) and the paper's exponent drawn through our points."""
+    exponent, ln_amplitude = res["fit"][0], res["fit"][-1]
+    ax.errorbar(x, res["mean"], yerr=res["error"], fmt="o", ms=3, capsize=2, color=colours[0], label=label)
+    grid = np.geomspace(x.min(), x.max(), 50)
+    symbol = rf"$\{name}$"
+    ax.plot(grid, np.exp(ln_amplitude) * grid**exponent, color=colours[0], lw=1, label=f"fit: {symbol} = {exponent:.2f}")
+    mid = np.exp(np.mean(np.log(x)))
+    anchor = np.exp(ln_amplitude) * mid**exponent
+    ax.plot(grid, anchor * (grid / mid) ** PAPER[name][0], color=colours[1], lw=1, ls="--",
+            label=f"paper: {symbol} = {PAPER[name][0]:g}")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    house.label_axes(ax, xlabel, r"$v_a$")
+    house.legend(ax, args.theme, loc="upper left")
+    ax.set_title(title, fontsize=house.fontsize(ax.figure))
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(LogLocator(subs=(1, 2, 3, 5)))
+        axis.set_major_formatter(FormatStrFormatter("%g"))
+        axis.set_minor_formatter(NullFormatter())
+
+
 def figure(res: dict, args, path: str) -> None:
     """Fig. 2a, Fig. 2b and the two fits in log-log form, the paper's exponents beside ours."""
     t = house.get_theme(args.theme)
@@ -139,44 +163,12 @@ def figure(res: dict, args, path: str) -> None:
     b.set_ylim(0, 1.02)
     b.set_title(r"Fig. 2b: L = 20, $\eta$ = 2", fontsize=house.fontsize(fig))
 
-    beta, eta_c, lna = res["beta"]["fit"]
-    x = np.asarray(res["beta"]["noises"])
-    bm, be = res["beta"]["mean"], res["beta"]["error"]
-    u = (eta_c - x) / eta_c
-    c.errorbar(u, bm, yerr=be, fmt="o", ms=3, capsize=2, color=colours[0], label=f"N = {res['beta']['n']}")
-    grid = np.geomspace(u.min(), u.max(), 50)
-    c.plot(grid, np.exp(lna) * grid**beta, color=colours[0], lw=1, label=rf"fit: $\beta$ = {beta:.2f}")
-    mid = np.exp(np.mean(np.log(u)))
-    anchor = np.exp(lna) * mid**beta
-    c.plot(grid, anchor * (grid / mid) ** PAPER["beta"][0], color=colours[1], lw=1, ls="--",
-           label=rf"paper: $\beta$ = {PAPER['beta'][0]:g}")
-    c.set_xscale("log")
-    c.set_yscale("log")
-    house.label_axes(c, rf"$(\eta_c - \eta)/\eta_c$, $\eta_c$ = {eta_c:.2f}", r"$v_a$")
-    house.legend(c, args.theme, loc="upper left")
-    c.set_title(r"$\beta$: Fig. 2a's largest N below $\eta_c$", fontsize=house.fontsize(fig))
-
-    delta, lnb = res["delta"]["fit"]
-    rho = np.asarray(res["delta"]["densities"])
-    dm, de = res["delta"]["mean"], res["delta"]["error"]
+    eta_c = res["beta"]["fit"][1]
+    u = (eta_c - np.asarray(res["beta"]["noises"])) / eta_c
+    power_law(c, args, colours, "beta", u, res["beta"], f"N = {res['beta']['n']}",
+              rf"$(\eta_c - \eta)/\eta_c$, $\eta_c$ = {eta_c:.2f}", r"$\beta$: Fig. 2a's largest N below $\eta_c$")
     d.errorbar(args.densities, m, yerr=e, fmt="o", ms=3, capsize=2, color=colours[0], alpha=0.35)
-    d.errorbar(rho, dm, yerr=de, fmt="o", ms=3, capsize=2, color=colours[0], label="fitted points")
-    grid = np.geomspace(rho.min(), rho.max(), 50)
-    d.plot(grid, np.exp(lnb) * grid**delta, color=colours[0], lw=1, label=rf"fit: $\delta$ = {delta:.2f}")
-    mid = np.exp(np.mean(np.log(rho)))
-    anchor = np.exp(lnb) * mid**delta
-    d.plot(grid, anchor * (grid / mid) ** PAPER["delta"][0], color=colours[1], lw=1, ls="--",
-           label=rf"paper: $\delta$ = {PAPER['delta'][0]:g}")
-    d.set_xscale("log")
-    d.set_yscale("log")
-    house.label_axes(d, r"density $\rho$", r"$v_a$")
-    house.legend(d, args.theme, loc="upper left")
-    d.set_title(r"$\delta$: Fig. 2b at small density", fontsize=house.fontsize(fig))
-    for ax in (c, d):
-        for axis in (ax.xaxis, ax.yaxis):
-            axis.set_major_locator(LogLocator(subs=(1, 2, 3, 5)))
-            axis.set_major_formatter(FormatStrFormatter("%g"))
-            axis.set_minor_formatter(NullFormatter())
+    power_law(d, args, colours, "delta", np.asarray(res["delta"]["densities"]), res["delta"], "fitted points", r"density $\rho$", r"$\delta$: Fig. 2b at small density")
     house.title(fig, "Vicsek et al. 1995: order against noise and density, and the exponents",
                 f"$v_0$ = 0.03 · R = 1 · forward update · noise uniform in [$-\\eta/2$, $\\eta/2$] · "
                 f"{args.replicas} systems a point, {args.steps:,} steps, first {args.discard:,} left out · "
