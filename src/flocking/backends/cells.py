@@ -58,12 +58,12 @@ def cell_grid(model: Model) -> np.ndarray:
 
 @numba.njit(cache=True, inline="always")
 def cell_of(pos, i, nc, inv):
-    """Row-major cell index of slot ``i`` with x fastest, so a row of cells is contiguous
-    (each axis by :func:`flocking.rules.geometry.cell_index`: always a valid cell)."""
-    c = 0
-    for a in range(pos.shape[0] - 1, -1, -1):
-        c = c * nc[a] + R.cell_index(pos[a, i], inv[a], nc[a])
-    return c
+    """The cell of slot ``i``, numbered by :func:`flocking.rules.geometry.cell_number`
+    (x fastest, so a row of cells is contiguous; each axis by
+    :func:`flocking.rules.geometry.cell_index`: always a valid cell)."""
+    c2 = R.cell_index(pos[2, i], inv[2], nc[2]) if pos.shape[0] == 3 else 0
+    return R.cell_number(R.cell_index(pos[0, i], inv[0], nc[0]), R.cell_index(pos[1, i], inv[1], nc[1]), c2, nc[0],
+                         nc[1])
 
 
 @numba.njit(cache=True, parallel=True)
@@ -175,7 +175,7 @@ def neighbour_line(gy, gz, r, nc, box, d):
     the shifts (y, z) to its periodic image nearest that line."""
     hz, shz = neighbour_row(gz + r // 3 - 1, nc[d - 1], box[d - 1]) if d == 3 else (0, 0.0)
     hy, shy = neighbour_row(gy + r % 3 - 1, nc[1], box[1])
-    return (hz * nc[1] + hy) * nc[0], shy, shz
+    return R.cell_number(0, hy, hz, nc[0], nc[1]), shy, shz
 
 
 @numba.njit(cache=True)

@@ -26,8 +26,11 @@ import numba
 import numpy as np
 
 from ..model import Model
+from ..rules import compile as compile_rules
 from . import cells
 from .features import features
+
+R = compile_rules("cpu")
 
 #: nanoseconds of one core per particle and per neighbour candidate in a step, by kernel
 #: (``topological``: per particle and neighbour sought, ``k + 1``); measured on the
@@ -104,9 +107,7 @@ def candidates(pos, nc, inv):
     for c in range(counts.shape[0]):
         if counts[c] == 0.0:
             continue
-        cx = c % nc[0]
-        cy = (c // nc[0]) % ny
-        cz = c // (nc[0] * ny)
+        cx, cy, cz = R.cell_coords(c, nc[0], ny)
         around = 0.0
         for kz in range(span[2] if d == 3 else 1):
             z = (cz + kz - 1 + nz) % nz if d == 3 else 0
@@ -114,6 +115,6 @@ def candidates(pos, nc, inv):
                 y = (cy + ky - 1 + ny) % ny
                 for kx in range(span[0]):
                     x = (cx + kx - 1 + nc[0]) % nc[0]
-                    around += counts[(z * ny + y) * nc[0] + x]
+                    around += counts[R.cell_number(x, y, z, nc[0], ny)]
         total += counts[c] * around
     return total

@@ -345,11 +345,12 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
     pair by minimum image, none across a wall: ``(S (3), count, pull (3), push (3), core
     count)``; ``S`` and the count include the particle itself unless ``WEIGHTED``."""
     d = DIM
-    o0, n0 = cells.axis_cells(c % nc[0], nc[0])
-    o1, n1 = cells.axis_cells((c // nc[0]) % nc[1], nc[1])
+    c0, c1, c2 = R.cell_coords(c, nc[0], nc[1])
+    o0, n0 = cells.axis_cells(c0, nc[0])
+    o1, n1 = cells.axis_cells(c1, nc[1])
     o2, n2 = 0, 1
     if d == 3:
-        o2, n2 = cells.axis_cells(c // (nc[0] * nc[1]), nc[2])
+        o2, n2 = cells.axis_cells(c2, nc[2])
     s = R.SUM0
     for k2 in range(n2):
         g2 = o2 + k2
@@ -367,7 +368,7 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
                 if EXT and tb.walls[0] != 0 and (g0 < 0 or g0 >= nc[0]):
                     continue
                 g0 %= nc[0]
-                cell = (g2 * nc[1] + g1) * nc[0] + g0
+                cell = R.cell_number(g0, g1, g2, nc[0], nc[1])
                 for j in range(start[cell], start[cell + 1]):
                     if WEIGHTED and j == i:
                         continue
@@ -393,7 +394,7 @@ def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs):
     nc2 = nc[2] if d == 3 else 1
     l2 = box[2] if d == 3 else 1.0
     h2 = tb.half[2] if d == 3 else np.inf
-    c0, c1, c2 = c % nc[0], (c // nc[0]) % nc[1], c // (nc[0] * nc[1]) if d == 3 else 0
+    c0, c1, c2 = R.cell_coords(c, nc[0], nc[1])
     found = R.knearest(i, c0, c1, c2, 0, pos, head, ids, start, nc[0], nc[1], nc2, box[0], box[1], l2, tb.half[0],
                        tb.half[1], h2, d, k, CONE, tb.cone[0], bd, bi, bs)
     s = R.SUM0

@@ -166,7 +166,7 @@ def metric(i, cb, cur, start, p, tb, si):
         gz, shz = row_of(cz, oz, nc2, p.s2) if DIM == 3 else (0, ZERO)
         for oy in range(R.lesser(nc1, 3)):
             gy, shy = row_of(cy, oy, nc1, p.s1)
-            row = cb + (gz * nc1 + gy) * nc0
+            row = cb + R.cell_number(0, gy, gz, nc0, nc1)
             for run in range(2):
                 if run == 0:
                     lo, hi, shx = start[row + a0], start[row + a1], sha
@@ -216,6 +216,13 @@ def nearest(i, cb, cur, start, p, tb, si, bd, bi, bs):
     return s
 
 # -- one step --------------------------------------------------------------------
+
+def cell_of(x, y, z, p):
+    """The cell of a point in its replica (:func:`flocking.rules.geometry.cell_number`;
+    ``z`` unused in 2D)."""
+    cz = R.cell_index(z, p.inv2, p.nc2) if DIM == 3 else 0
+    return R.cell_number(R.cell_index(x, p.inv0, p.nc0), R.cell_index(y, p.inv1, p.nc1), cz, p.nc0, p.nc1)
+
 
 def slot_of(n):
     """This thread's replica ``r``, its slot in the replica (``>= n``, replicas of ``n``
@@ -302,10 +309,9 @@ def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
                                    tb.obstacles, p.obstacles)
     new.head[0, i], new.head[1, i] = wx, wy
     new.pos[0, i], new.pos[1, i] = x, y
-    c = R.cell_index(y, p.inv1, p.nc1) * p.nc0 + R.cell_index(x, p.inv0, p.nc0)
     if DIM == 3:
         new.head[2, i], new.pos[2, i] = wz, z
-        c += R.cell_index(z, p.inv2, p.nc2) * p.nc1 * p.nc0
+    c = cell_of(x, y, z, p)
     new.ids[i] = pid
     rec[gid] = (np.uint64(cb + c) << KEY) | np.uint64(i)
 
@@ -316,9 +322,7 @@ def cells(pos, P, rec):
     r, local, i = slot_of(n)
     if local >= n:
         return
-    c = R.cell_index(pos[1, i], p.inv1, p.nc1) * p.nc0 + R.cell_index(pos[0, i], p.inv0, p.nc0)
-    if DIM == 3:
-        c += R.cell_index(pos[2, i], p.inv2, p.nc2) * p.nc1 * p.nc0
+    c = cell_of(pos[0, i], pos[1, i], pos[2, i] if DIM == 3 else ZERO, p)
     rec[i] = (np.uint64(r * p.cells + c) << KEY) | np.uint64(i)
 
 # -- back into slots, cell starts, moments ------------------------------------------
@@ -412,7 +416,7 @@ def finish(partial, P, phi, clock, hist, tiles, tick):
 
 
 #: the device functions of a build, callees first
-DEVICE = ('slot_of', 'x_ranges', 'row_of', 'terms', 'metric', 'nearest', 'move', 'block_sum')
+DEVICE = ('cell_of', 'slot_of', 'x_ranges', 'row_of', 'terms', 'metric', 'nearest', 'move', 'block_sum')
 #: the kernels of a build
 KERNELS = ('step', 'cells', 'gather', 'finish')
 

@@ -23,7 +23,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..rules import compile as compile_rules
 from . import cells, delaunay
+
+R = compile_rules("cpu")
 
 #: most sides a cell may have (a random state's have 4 to about 12)
 MAX_SIDES = 48
@@ -60,7 +63,7 @@ def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qta
     hx, hy = box[0] / nc[0], box[1] / nc[1]
     step = min(hx, hy)
     c0 = cells.cell_of(pos, i, nc, nc / box)  # the cell the sort put it in
-    gx, gy = c0 % nc[0], c0 // nc[0]
+    gx, gy, _ = R.cell_coords(c0, nc[0], nc[1])
     lo_x, hi_x = (-xi, box[0] - xi) if walls[0] else (-0.5 * box[0], 0.5 * box[0])
     lo_y, hi_y = (-yi, box[1] - yi) if walls[1] else (-0.5 * box[1], 0.5 * box[1])
     px[0], py[0], px[1], py[1] = lo_x, lo_y, hi_x, lo_y

@@ -16,6 +16,8 @@ folded into ``[-L/2, L/2]``) or closed by walls (coordinates in ``[0, L]``, no f
 ((0.5, 0.8), (0.5, 0.6))
 >>> cell_index(3.9, 0.75, 3), cell_index(-1.0, 0.75, 3), cell_index(float("nan"), 0.75, 3)
 (2, 0, 0)
+>>> cell_number(1, 2, 3, 4, 5), cell_coords(cell_number(1, 2, 3, 4, 5), 4, 5)
+(69, (1, 2, 3))
 """
 
 import math
@@ -24,7 +26,7 @@ REAL = float
 ZERO, ONE, TWO, INF = 0.0, 1.0, 2.0, math.inf
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("wrap", "minimum_image", "cell_index", "fold", "push_out_2d", "push_out_3d")
+RULES = ("wrap", "minimum_image", "cell_index", "cell_number", "cell_coords", "fold", "push_out_2d", "push_out_3d")
 
 
 def wrap(x, length):
@@ -59,6 +61,18 @@ def cell_index(x, inv, n):
             return n - 1
         return int(f)
     return 0
+
+
+def cell_number(c0, c1, c2, n0, n1):
+    """The number of cell ``(c0, c1, c2)`` in a grid of ``n0 x n1 (x n2)`` cells: row by
+    row, x fastest (a 2D grid has ``c2 = 0``). Every cell list of the package numbers its
+    cells so."""
+    return (c2 * n1 + c1) * n0 + c0
+
+
+def cell_coords(c, n0, n1):
+    """The cell ``(c0, c1, c2)`` numbered ``c`` by :func:`cell_number`."""
+    return c % n0, (c // n0) % n1, c // (n0 * n1)
 
 
 def fold(x, u, length, wall):

@@ -12,7 +12,7 @@ compile-time constant.
 
 import math
 
-from .geometry import minimum_image
+from .geometry import cell_number, minimum_image
 from .physics import greater, sees
 
 ZERO, INF = 0.0, math.inf
@@ -97,7 +97,7 @@ def knearest(i, c0, c1, c2, cb, pos, head, ids, start, nc0, nc1, nc2, l0, l1, l2
                 for o0 in range(-lesser(r, lo0), lesser(r, hi0) + 1):
                     if edge or abs(o0) == r:
                         g0 = (c0 + o0) % nc0
-                        cell = cb + (g2 * nc1 + g1) * nc0 + g0
+                        cell = cb + cell_number(g0, g1, g2, nc0, nc1)
                         for j in range(start[cell], start[cell + 1]):
                             if j == i:
                                 continue
