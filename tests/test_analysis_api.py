@@ -110,8 +110,21 @@ def test_inputs_agree(tmp_path):
         np.testing.assert_allclose(vc(raw[len(raw) - 1]), ref)
     # a run folder and a path: its stored radius is the cluster radius
     cl = fa.Clusters().compute(path)
-    assert cl.radius_used == 1.0 and cl.num_frames == 3
+    assert cl.radius_used == 1.0 and cl.k_used == 0 and cl.num_frames == 3
     assert fa.Clusters(frames=1).compute(tmp_path.joinpath("t.gsd")).num_frames == 1
+
+
+def test_clusters_of_a_topological_run_by_its_k_nearest(tmp_path):
+    model = flocking.Model(n=300, box=10.0, noise=0.4, neighbours="topological", k=4, seed=2)
+    sim = flocking.Simulation(model)
+    sim.writers.append(flocking.GSDWriter(tmp_path / "t.gsd", every=5))
+    sim.run(5)
+    by_k = fa.Clusters(k=4).compute(tmp_path / "t.gsd")
+    assert by_k.k_used == 4 and math.isnan(by_k.radius_used)
+    frame = fa.snapshots.as_frames(tmp_path / "t.gsd")[-1]
+    np.testing.assert_array_equal(by_k.cluster_idx, fa.Clusters(k=4).compute([frame]).cluster_idx)
+    by_radius = fa.Clusters().compute(tmp_path / "t.gsd")  # the run's radius, as for any run
+    assert by_radius.k_used == 0 and by_radius.radius_used == model.radius
 
 
 def test_results_before_compute_and_read_only():

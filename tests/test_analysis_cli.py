@@ -151,11 +151,29 @@ def test_msd_of_frames_too_far_apart_is_skipped_with_the_reason(tmp_path):
 def test_clusters_summary_says_which_fraction(run_dir, tmp_path):
     res = run("analyze", run_dir, "--only", "clusters", "--out", tmp_path, "--no-plots")
     data = json.loads((tmp_path / "analysis.json").read_text())["clusters"]
-    line = (f"clusters: largest {data['largest_fraction_mean']:.3f} of N (mean over {data['num_frames']} frames; "
+    line = (f"clusters (closer than {data['radius_used']:g}): largest {data['largest_fraction_mean']:.3f} of N (mean over {data['num_frames']} frames; "
             f"last frame {data['largest_fraction']:.3f}), weight-average size {data['weight_average_size']:.4g}, "
             f"number-average size {data['number_average_size']:.4g}")
     assert data["weight_average_size"] < 1e4  # printed to 4 digits
     assert line in res.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--cluster-k", "0"], "--cluster-k: must be a whole number >= 1 (got 0)"),
+    (["--cluster-k", "100000"], "--cluster-k: must be at most the number of other particles"),
+    (["--cluster-k", "3", "--cluster-radius", "1"], "--cluster-k: links by distance or by the k nearest, not both"),
+])
+def test_cluster_k_refusals_write_nothing(run_dir, tmp_path, args, message):
+    res = run("analyze", run_dir, "--only", "clusters", "--out", tmp_path / "out", "--no-plots", *args)
+    assert res.exit_code != 0 and message in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_clusters_by_the_k_nearest_from_the_command_line(run_dir, tmp_path):
+    res = run("analyze", run_dir, "--only", "clusters", "--out", tmp_path, "--no-plots", "--cluster-k", "3")
+    assert res.exit_code == 0, res.output
+    data = json.loads((tmp_path / "analysis.json").read_text())["clusters"]
+    assert data["k_used"] == 3 and "clusters (each with its 3 nearest): largest" in res.output
 
 
 def test_profile_csv_is_in_the_file_coordinates(tmp_path):

@@ -220,6 +220,42 @@ def test_clusters_3d_and_brute_force():
     np.testing.assert_array_equal(pairs, cl.cluster_idx[:, None] == cl.cluster_idx[None])
 
 
+@pytest.mark.parametrize("walls", [(False, False), (True, False)])
+def test_clusters_by_the_k_nearest_are_the_components_of_the_knn_graph(walls):
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from flocking.space import Space
+
+    rng = np.random.default_rng(9)
+    box = np.array([12.0, 9.0])
+    pts = np.concatenate([rng.normal(3.0, 0.6, (80, 2)), rng.normal(8.5, 0.6, (80, 2)), rng.uniform(0, 9, (40, 2))])
+    pts = np.mod(pts, box)
+    space = Space(tuple(box), walls)
+    d = pts[None] - pts[:, None]
+    if not walls[0]:
+        d[..., 0] -= box[0] * np.round(d[..., 0] / box[0])
+    d[..., 1] -= box[1] * np.round(d[..., 1] / box[1])
+    r = np.linalg.norm(d, axis=2)
+    np.fill_diagonal(r, np.inf)
+    for k in (1, 3):
+        near = np.argsort(r, axis=1, kind="stable")[:, :k]  # no exact ties among random points
+        graph = coo_matrix((np.ones(near.size), (np.repeat(np.arange(len(pts)), k), near.ravel())), (200, 200))
+        ncomp, lab = connected_components(graph, directed=True, connection="weak")
+        cl = fa.Clusters(k=k).compute((space, pts))
+        assert cl.num_clusters == ncomp and cl.k_used == k and math.isnan(cl.radius_used)
+        np.testing.assert_array_equal(lab[:, None] == lab[None], cl.cluster_idx[:, None] == cl.cluster_idx[None])
+
+
+def test_clusters_take_radius_or_k_not_both_nor_too_many():
+    with pytest.raises(ValueError, match="k: links by distance or by the k nearest, not both"):
+        fa.Clusters(radius=1.0, k=3)
+    with pytest.raises(ValueError, match=r"k: must be a whole number >= 1 \(got 0\)"):
+        fa.Clusters(k=0)
+    with pytest.raises(ValueError, match="k: must be at most the number of other particles, 2 "):
+        fa.Clusters(k=3).compute((5.0, np.zeros((3, 2))))
+
+
 def test_clusters_radius_larger_than_half_box():
     pts = np.array([[0.0, 0.0], [1.5, 0.0], [0.0, 1.5]])
     cl = fa.Clusters(radius=1.6).compute((3.0, pts))

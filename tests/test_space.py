@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import flocking
-from flocking.space import Space, cell_shape
+from flocking.neighbour_query import cell_shape
+from flocking.space import Space
 
 
 def brute_pairs(points, box, walls, cutoff):

@@ -29,21 +29,15 @@ import dataclasses
 import functools
 import math
 from collections.abc import Iterator, Sequence
-from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from .model import Model
+from .neighbour_query import BLOCK_PAIRS, CellList, NeighbourQuery, Pairs
 from .rules import compile as compile_rules
 
 _R = compile_rules("cpu")
-_jit = numba.njit(cache=True)
-_pjit = numba.njit(cache=True, parallel=True)
-
-#: pairs handed out at a time by :meth:`Space.pair_blocks` (about 100 MB of arrays)
-BLOCK_PAIRS = 1 << 22
-
 
 def _minimum_image(dx, length, half):
     return _R.minimum_image(dx, length, half)
@@ -60,35 +54,6 @@ def _ufuncs() -> tuple:
     measures a distance a third of a second (loading them from numba's cache included)."""
     return (numba.vectorize(["float64(float64, float64, float64)"], cache=True)(_minimum_image),
             numba.vectorize(["float64(float64, float64)"], cache=True)(_wrap))
-
-
-class Pairs(NamedTuple):
-    """Pairs of points closer than a cutoff, each once: indices ``i < j`` into the points
-    given, and their ``distance`` (minimum image along periodic axes)."""
-
-    i: np.ndarray
-    j: np.ndarray
-    distance: np.ndarray
-
-
-class CellList(NamedTuple):
-    """Points sorted into cells at least ``cutoff`` wide, in three dimensions (a 2D space
-    has one cell along z, where every point sits at 0), for kernels that visit pairs.
-
-    ``points`` (N, 3): relative to the box's corner, in slot order; ``order`` (N,): the
-    index of the point in each slot; ``start`` (cells + 1,): the first slot of each cell
-    (cells numbered with z fastest); ``shape`` (3,): cells per axis; ``near`` (cells, 27):
-    the distinct cells within one of each cell along every axis (across periodic sides,
-    never across a wall), ``-1`` past the last; ``lengths`` and ``half`` (3,): the box and
-    how far a displacement reaches before it is folded (infinite along walls)."""
-
-    points: np.ndarray
-    order: np.ndarray
-    start: np.ndarray
-    shape: np.ndarray
-    near: np.ndarray
-    lengths: np.ndarray
-    half: np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -294,208 +259,34 @@ class Space:
         axes = [o + (np.arange(per_axis) + 0.5) * (length / per_axis) for o, length in zip(self.origin, self.box)]
         return np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
 
+    def neighbours(self, points: Sequence) -> NeighbourQuery:
+        """A :class:`~flocking.neighbour_query.NeighbourQuery` over ``points`` (in this
+        space's coordinates): pairs within a distance and the k nearest, its cell lists
+        built once and kept for every question asked of it."""
+        return NeighbourQuery(self, points)
+
     def cells(self, points: Sequence, cutoff: float) -> CellList:
-        """The :class:`CellList` of ``points`` (in this space's coordinates) for pairs
-        closer than ``cutoff``: cells at least ``cutoff`` wide, at most about four per
-        point. With fewer than three cells along a periodic axis a cell's neighbours are
-        listed once, so each pair is seen once, at its minimum image (even when
-        ``cutoff`` exceeds half the box)."""
-        x = self.inside(points) - np.asarray(self.origin)
-        n = len(x)
-        shape = cell_shape(self.lengths, cutoff, n)
-        pos = np.zeros((n, 3))
-        pos[:, : self.dim] = x
-        lengths = np.ones(3)
-        lengths[: self.dim] = self.lengths
-        half = np.full(3, np.inf)
-        half[: self.dim] = self.half
-        periodic = np.zeros(3, dtype=np.bool_)
-        periodic[: self.dim] = self.periodic
-        start, order = _sort(pos, shape / lengths, shape)
-        return CellList(np.ascontiguousarray(pos[order]), order, start, shape, _near(shape, periodic), lengths, half)
+        """The :class:`~flocking.neighbour_query.CellList` of ``points`` for pairs closer
+        than ``cutoff`` (see :meth:`NeighbourQuery.cells`)."""
+        return self.neighbours(points).cells(cutoff)
 
     def pair_blocks(self, points: Sequence, cutoff: float, block: int = BLOCK_PAIRS) -> Iterator[Pairs]:
         """Every pair of ``points`` strictly closer than ``cutoff`` (minimum image along
         periodic axes, none across a wall), once each, in :class:`Pairs` of at most
         about ``block`` pairs (more only where one cell holds more)."""
-        cl = self.cells(points, cutoff)
-        cutoff2 = float(cutoff) ** 2
-        counts = _pair_counts(cl.points, cl.start, cl.near, cl.lengths, cl.half, cutoff2)
-        ends = np.cumsum(counts)
-        first = 0
-        while first < len(counts):
-            base = int(ends[first - 1]) if first else 0
-            last = max(int(np.searchsorted(ends, base + block, side="right")), first + 1)
-            size = int(ends[last - 1]) - base
-            out_i, out_j, out_r = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)
-            _pair_fill(cl.points, cl.order, cl.start, cl.near, cl.lengths, cl.half, cutoff2, first, last,
-                       ends - counts - base, out_i, out_j, out_r)
-            yield Pairs(out_i, out_j, out_r)
-            first = last
+        return self.neighbours(points).pair_blocks(cutoff, block)
 
     def pair_histogram(self, points: Sequence, cutoff: float, bins: int, vectors=None) -> tuple[np.ndarray, ...]:
-        """Over the pairs of :meth:`pair_blocks` (each once), by distance in ``bins``
-        equal bins of ``[0, cutoff)``: ``(counts, sums)``, ``sums`` the sum of
-        ``vectors[i] . vectors[j]`` (rows, one per point; zeros when not given). A pair
-        histogram in one parallel pass, with no list of pairs.
+        """Pair counts and sums of ``vectors[i] . vectors[j]`` by distance in ``bins``
+        equal bins of ``[0, cutoff)`` (see :meth:`NeighbourQuery.pair_histogram`).
 
         >>> points, vectors = [[0.5, 0.5], [9.5, 0.5], [0.5, 9.0]], [[1, 0], [1, 1], [2, 0]]
         >>> Space((10.0, 10.0)).pair_histogram(points, 2.0, 4, vectors)  # distances 1, 1.5 and 1.8
         (array([0., 0., 1., 2.]), array([0., 0., 1., 4.]))
         """
-        cl = self.cells(points, cutoff)
-        vectors = np.zeros((len(cl.order), 1)) if vectors is None else np.asarray(vectors, dtype=np.float64)
-        vectors = np.ascontiguousarray(vectors.reshape(len(cl.order), -1)[cl.order])
-        chunks = int(min(len(cl.start) - 1, 8 * numba.get_num_threads()))
-        counts, sums = _pair_histogram(cl.points, vectors, cl.start, cl.near, cl.lengths, cl.half, float(cutoff),
-                                       int(bins), chunks)
-        return counts, sums
+        return self.neighbours(points).pair_histogram(cutoff, bins, vectors)
 
     def pairs(self, points: Sequence, cutoff: float) -> Pairs:
         """Every pair of ``points`` strictly closer than ``cutoff``, once each (see
         :meth:`pair_blocks`), ``i < j``."""
-        blocks = list(self.pair_blocks(points, cutoff))
-        return Pairs(*(np.concatenate([getattr(b, name) for b in blocks]) for name in Pairs._fields))
-
-
-def cell_shape(lengths: np.ndarray, cutoff: float, n: int) -> np.ndarray:
-    """Cells per axis (3 entries, 1 beyond the dimension): at least ``cutoff`` wide, at
-    most about ``max(4 n, 64)`` in all.
-
-    >>> cell_shape(np.array([10.0, 3.0]), 1.0, 100).tolist(), cell_shape(np.array([100.0, 100.0]), 1.0, 10).tolist()
-    ([10, 3, 1], [6, 6, 1])
-    """
-    cells = np.maximum(np.floor(np.asarray(lengths, float) / cutoff), 1).astype(np.int64)
-    while np.prod(cells) > max(4 * n, 64):
-        cells = np.maximum(cells // 2, 1)
-    return np.concatenate([cells, np.ones(3 - len(cells), np.int64)])
-
-
-@_jit
-def _sort(pos, inv, shape):
-    """``(start, order)``: a counting sort of the points by cell (the engine's
-    :func:`~flocking.rules.geometry.cell_index` along each axis)."""
-    n = pos.shape[0]
-    cell = np.empty(n, np.int64)
-    for i in range(n):
-        c = 0
-        for a in range(3):
-            c = c * shape[a] + _R.cell_index(pos[i, a], inv[a], shape[a])
-        cell[i] = c
-    start = np.zeros(shape[0] * shape[1] * shape[2] + 1, np.int64)
-    for i in range(n):
-        start[cell[i] + 1] += 1
-    for c in range(len(start) - 1):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    for i in range(n):
-        order[fill[cell[i]]] = i
-        fill[cell[i]] += 1
-    return start, order
-
-
-@_jit
-def _near(shape, periodic):
-    """The distinct cells within one of each cell along every axis: across the sides of
-    periodic axes, never past a wall; ``-1`` past the last."""
-    ncell = shape[0] * shape[1] * shape[2]
-    out = np.full((ncell, 27), -1, np.int64)
-    for c in range(ncell):
-        home = (c // (shape[1] * shape[2]), (c // shape[2]) % shape[1], c % shape[2])
-        m = 0
-        for k in range(27):
-            d = 0
-            ok = True
-            for a in range(3):
-                x = home[a] + (k // 3 ** (2 - a)) % 3 - 1
-                if periodic[a]:
-                    x %= shape[a]
-                elif x < 0 or x >= shape[a]:
-                    ok = False
-                d = d * shape[a] + x
-            if ok:
-                for q in range(m):
-                    if out[c, q] == d:
-                        ok = False
-                if ok:
-                    out[c, m] = d
-                    m += 1
-    return out
-
-
-@numba.njit(inline="always")
-def _distance2(pos, i, j, lengths, half):
-    s = 0.0
-    for a in range(3):
-        d = _R.minimum_image(pos[j, a] - pos[i, a], lengths[a], half[a])
-        s += d * d
-    return s
-
-
-@_pjit
-def _pair_counts(pos, start, near, lengths, half, cutoff2):
-    """Pairs closer than the cutoff that each cell owns: those with points in a cell of
-    no lower index (in its own cell, with a point of a later slot)."""
-    ncell = len(start) - 1
-    counts = np.zeros(ncell, np.int64)
-    for c in numba.prange(ncell):
-        m = 0
-        for k in range(near.shape[1]):
-            c2 = near[c, k]
-            if c2 < c:
-                continue
-            for i in range(start[c], start[c + 1]):
-                for j in range(i + 1 if c2 == c else start[c2], start[c2 + 1]):
-                    if _distance2(pos, i, j, lengths, half) < cutoff2:
-                        m += 1
-        counts[c] = m
-    return counts
-
-
-@_pjit
-def _pair_fill(pos, order, start, near, lengths, half, cutoff2, first, last, offsets, out_i, out_j, out_r):
-    """The pairs of cells ``first .. last - 1`` (as :func:`_pair_counts` counts them),
-    each cell's from ``offsets[cell]``, as indices into the points given (smaller first)."""
-    for c in numba.prange(first, last):
-        m = offsets[c]
-        for k in range(near.shape[1]):
-            c2 = near[c, k]
-            if c2 < c:
-                continue
-            for i in range(start[c], start[c + 1]):
-                for j in range(i + 1 if c2 == c else start[c2], start[c2 + 1]):
-                    r2 = _distance2(pos, i, j, lengths, half)
-                    if r2 < cutoff2:
-                        a, b = order[i], order[j]
-                        out_i[m], out_j[m] = min(a, b), max(a, b)
-                        out_r[m] = math.sqrt(r2)
-                        m += 1
-
-
-@_pjit
-def _pair_histogram(pos, vec, start, near, lengths, half, cutoff, nbins, nchunks):
-    """Per chunk of cells, pair counts and sums of ``vec_i . vec_j`` per distance bin
-    (pairs as :func:`_pair_counts` counts them), then summed over the chunks in order."""
-    ncell = len(start) - 1
-    counts = np.zeros((nchunks, nbins))
-    sums = np.zeros((nchunks, nbins))
-    cutoff2 = cutoff * cutoff
-    scale = nbins / cutoff
-    for chunk in numba.prange(nchunks):
-        for c in range(chunk * ncell // nchunks, (chunk + 1) * ncell // nchunks):
-            for k in range(near.shape[1]):
-                c2 = near[c, k]
-                if c2 < c:
-                    continue
-                for i in range(start[c], start[c + 1]):
-                    for j in range(i + 1 if c2 == c else start[c2], start[c2 + 1]):
-                        r2 = _distance2(pos, i, j, lengths, half)
-                        if r2 < cutoff2:
-                            b = min(int(math.sqrt(r2) * scale), nbins - 1)
-                            dot = 0.0
-                            for a in range(vec.shape[1]):
-                                dot += vec[i, a] * vec[j, a]
-                            counts[chunk, b] += 1.0
-                            sums[chunk, b] += dot
-    return counts.sum(axis=0), sums.sum(axis=0)
+        return self.neighbours(points).within(cutoff)

@@ -1,10 +1,15 @@
-"""Clusters: particles linked when closer than ``radius``.
+"""Clusters: particles linked when closer than ``radius``, or (``k``) when one is among
+the other's ``k`` nearest, the topological model's interaction graph.
 
-Distances are those of the engine (:class:`flocking.space.Space`): the minimum image along
-periodic axes, none across a wall, so particles facing each other across a wall are not
-linked. Obstacles hide no neighbour in the engine, so a link may cross one. Union-find
-over the pairs of a cell list, O(N) per frame. Labels are numbered by decreasing size (0
-is the largest cluster; ties by the lowest particle index).
+Distances and nearest neighbours are those of the engine
+(:meth:`flocking.space.Space.neighbours`): the minimum image along periodic axes, none
+across a wall, so particles facing each other across a wall are not linked. Obstacles
+hide no neighbour in the engine, so a link may cross one. Union-find over the pairs of a
+cell list, O(N) per frame. Labels are numbered by decreasing size (0 is the largest
+cluster; ties by the lowest particle index). Without ``radius`` or ``k`` the run's radius
+links them, also for a topological run, whose graph of k nearest is nearly one cluster
+for the usual k (in 20 000 uniform random points in 2D, k = 4 leaves 0.06 % outside the
+largest cluster, k = 5 none).
 
 Over the frames of the window, with ``n_s`` the number of clusters of size ``s`` summed
 over all of them: the number-average size ``sum s n_s / sum n_s`` (the mean size of a
@@ -23,6 +28,8 @@ frame and averaged over the frames.
 >>> walled = Space((10.0, 10.0), walls=(True, False))
 >>> Clusters(radius=1.0).compute((walled, pts)).sizes.tolist()  # a wall at x = 0 parts them
 [2, 1, 1, 1]
+>>> Clusters(k=1).compute((10.0, pts)).sizes.tolist()  # each with its nearest: 0-1, 2-3, and 4 with 0
+[3, 2]
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..checks import ParameterError, integer
 from ..space import Space
 from . import snapshots
 from .base import Analysis, format_value, log_ticks, pair_notes, positive, result
@@ -64,12 +72,17 @@ def _roots(parent):
     return parent
 
 
-def labels(space: Space, positions, radius: float) -> np.ndarray:
+def labels(space: Space, positions, radius: float | None = None, k: int | None = None) -> np.ndarray:
     """Cluster label of each particle, 0 for the largest cluster: particles closer than
-    ``radius`` in ``space`` are linked."""
+    ``radius`` in ``space`` are linked, or (``k`` given) each with its ``k`` nearest."""
+    query = space.neighbours(positions)
     parent = np.arange(len(positions))
-    for pairs in space.pair_blocks(positions, radius):
-        _join(parent, pairs.i, pairs.j)
+    if k is not None:
+        nearest, _ = query.nearest(k)
+        _join(parent, np.repeat(parent.copy(), k), nearest.ravel())
+    else:
+        for pairs in query.pair_blocks(radius):
+            _join(parent, pairs.i, pairs.j)
     roots = _roots(parent)
     uniq, first, inverse, sizes = np.unique(roots, return_index=True, return_inverse=True, return_counts=True)
     rank = np.empty(len(uniq), np.int64)
@@ -83,8 +96,11 @@ class Clusters(Analysis):
     Parameters
     ----------
     radius
-        Link distance (strictly closer). Default: the trajectory's interaction radius
-        when it stores one, else 1.
+        Link distance (strictly closer).
+    k
+        Instead of a distance: each particle is linked with its ``k`` nearest (ties to
+        the lower index, as in the engine). Default (neither given): the trajectory's
+        interaction radius when it stores one, else a radius of 1.
     start, frames
         The window. Labels are those of the last frame; the size distribution
         and the averages are over all frames of the window.
@@ -92,15 +108,18 @@ class Clusters(Analysis):
 
     _keys = ("num_clusters", "largest_fraction", "largest_fraction_mean", "number_average_size",
              "weight_average_size", "size_values", "size_counts_total", "size_counts_per_frame", "radius_used",
-             "num_frames")
+             "k_used", "num_frames")
 
-    def __init__(self, radius=None, start=None, frames=None):
+    def __init__(self, radius=None, k=None, start=None, frames=None):
         self.radius = positive("radius", radius, allow_none=True)
+        self.k = None if k is None else integer("k", k, 1)
+        if radius is not None and k is not None:
+            raise ParameterError(f"k: links by distance or by the k nearest, not both (got radius={radius!r}, k={k!r})")
         snapshots.window_start(start, [0], 1)
         self.start, self.frames = start, snapshots.check_count("frames", frames)
 
     def parameters(self) -> dict:
-        return {"radius": self.radius, "start": self.start, "frames": self.frames}
+        return {"radius": self.radius, "k": self.k, "start": self.start, "frames": self.frames}
 
     cluster_idx = result("cluster_idx", "Label of each particle in the last frame (0 = largest).")
     sizes = result("sizes", "Cluster sizes in the last frame, largest first.")
@@ -112,18 +131,21 @@ class Clusters(Analysis):
     size_values = result("size_values", "Distinct cluster sizes s over all frames.")
     size_counts_total = result("size_counts_total", "n_s: clusters of each size, summed over the frames.")
     size_counts_per_frame = result("size_counts_per_frame", "n_s / frames: clusters of each size per frame.")
-    radius_used = result("radius_used", "The link radius used.")
+    radius_used = result("radius_used", "The link radius used (NaN when linked by the k nearest).")
+    k_used = result("k_used", "The number of nearest others each particle is linked with (0 when linked by distance).")
     num_frames = result("num_frames", "Number of frames.")
 
     def compute(self, system) -> Clusters:
-        radius = self.radius
-        if radius is None:
+        radius, k = self.radius, self.k
+        if radius is None and k is None:
             model = snapshots.model_of(system)
             radius = model.radius if model is not None else 1.0
         frames = snapshots.select(snapshots.as_frames(system), self.start, self.frames)
+        if k is not None and k >= frames[-1].n:
+            raise ParameterError(f"k: must be at most the number of other particles, {frames[-1].n - 1} (got {k})")
         all_sizes, fractions = [], []
         for f in frames:
-            lab = labels(f.space, f.positions, radius)
+            lab = labels(f.space, f.positions, radius, k)
             sizes = np.bincount(lab)
             all_sizes.append(sizes)
             fractions.append(sizes[0] / f.n)
@@ -134,7 +156,8 @@ class Clusters(Analysis):
                     number_average_size=float(mass / counts.sum()),
                     weight_average_size=float((values.astype(float) ** 2 * counts).sum() / mass),
                     size_values=values, size_counts_total=counts, size_counts_per_frame=counts / len(frames),
-                    radius_used=float(radius), num_frames=len(frames),
+                    radius_used=float("nan") if radius is None else float(radius), k_used=int(k or 0),
+                    num_frames=len(frames),
                     notes=pair_notes(frames[-1].space, "no link"))
         return self
 

@@ -109,15 +109,20 @@ def build(name: str, model, start, frames, options: dict):
     if name == "profile":
         return fa.DensityProfile(start=start, frames=frames)
     if name == "clusters":
-        radius = options["radius"] if options["radius"] is not None else (model.radius if model else None)
-        return fa.Clusters(radius=radius, start=start, frames=frames)
+        k = options["cluster_k"]
+        if k is not None and model is not None and k >= model.n:
+            raise ParameterError(f"k: must be at most the number of other particles, {model.n - 1} (got {k})")
+        radius = options["radius"]
+        if radius is None and k is None and model is not None:
+            radius = model.radius
+        return fa.Clusters(radius=radius, k=k, start=start, frames=frames)
     if name == "boxcount":
         return fa.BoxCounting(start=start)
     return fa.MeanSquareDisplacement(max_lag=options["max_lag"], start=start, frames=frames)
 
 
 #: options of the command whose values reach an analysis under another name
-RENAMED = {"radius": "cluster_radius"}
+RENAMED = {"radius": "cluster_radius", "k": "cluster_k"}
 
 
 @click.command(short_help="Measure a run: order, fluctuations, correlation, bands, clusters.")
@@ -136,6 +141,8 @@ RENAMED = {"radius": "cluster_radius"}
               help="Bins over [0, 1] of the distribution of the polar (and nematic) order in the window.")
 @click.option("--cluster-radius", type=click.FLOAT, default=None,
               help="Two particles closer than this are in one cluster.  [default: the run's radius]")
+@click.option("--cluster-k", type=click.INT, default=None,
+              help="Link each particle with its k nearest instead of by distance.")
 @click.option("--r-max", type=click.FLOAT, default=None, help="Largest distance of C(r).  [default: L/2]")
 @click.option("--dr", type=click.FLOAT, default=None, help="Bin width of C(r).  [default: min(0.5, r_max/20)]")
 @click.option("--method", type=opt.OneOf(("auto", "cells", "grid")), default="auto", show_default=True,
@@ -153,7 +160,7 @@ RENAMED = {"radius": "cluster_radius"}
 @opt.dpi()
 @opt.plots("A figure per quantity (without: JSON and CSV only).")
 @opt.quiet("No summary on stderr.")
-def analyze(run_dir, only, start, frames, max_lag, bins, cluster_radius, r_max, dr, method, k_max, from_fields, out,
+def analyze(run_dir, only, start, frames, max_lag, bins, cluster_radius, cluster_k, r_max, dr, method, k_max, from_fields, out,
             theme, size, fmt, dpi, plots, quiet):
     """Measure a run: polar order, number fluctuations, structure factor, velocity
     correlation, density profile, clusters, box-counting dimension and MSD; the polar order of each species
@@ -198,7 +205,7 @@ def analyze(run_dir, only, start, frames, max_lag, bins, cluster_radius, r_max, 
         raise ParameterError(f"RUN_DIR {run_dir!r}: holds no trajectory.gsd")
     out = out or folder
     opt.check_folder("out", out)
-    options = {"radius": cluster_radius, "r_max": r_max, "dr": dr, "method": method, "max_lag": max_lag,
+    options = {"radius": cluster_radius, "cluster_k": cluster_k, "r_max": r_max, "dr": dr, "method": method, "max_lag": max_lag,
                "k_max": k_max}
     for name in names:  # every option checked before anything is read or written
         try:
@@ -488,7 +495,8 @@ def summary_lines(results) -> list[str]:
         elif name == "profile":
             lines.append(profile_line(obj))
         elif name == "clusters":
-            lines.append(f"clusters: largest {obj.largest_fraction_mean:.3f} of N (mean over {obj.num_frames} "
+            links = f"each with its {obj.k_used} nearest" if obj.k_used else f"closer than {obj.radius_used:g}"
+            lines.append(f"clusters ({links}): largest {obj.largest_fraction_mean:.3f} of N (mean over {obj.num_frames} "
                          f"frames; last frame {obj.largest_fraction:.3f}), weight-average size "
                          f"{format_value(obj.weight_average_size)}, number-average size "
                          f"{format_value(obj.number_average_size)}")
