@@ -110,7 +110,9 @@ class RunConfig:
 
     def to_dict(self) -> dict[str, Any]:
         init = self.init if self.init in INITS else os.path.abspath(self.init)
-        fields = {"fields": float(self.fields), "fields_every": self.fields_every} if self.fields else {}
+        fields = {"fields": float(self.fields)} if self.fields else {}
+        if self.fields_every:  # kept without fields too, so that the file gives back this config
+            fields["fields_every"] = self.fields_every
         return {**self.model.to_dict(), "steps": self.steps, "every": self.every,
                 "checkpoint_every": self.checkpoint_every, "init": init, "backend": self.backend,
                 "precision": self.precision, **fields}
