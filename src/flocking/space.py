@@ -8,7 +8,9 @@ in a GSD frame's centred ones). Its methods apply the engine's own rules
 distance measured by the analysis is the distance the engine used: the minimum image
 along periodic axes only, nothing across a wall. Obstacles hide nothing (the engine's
 neighbours see across them); :meth:`Space.in_obstacle` and
-:meth:`Space.boxes_touch_obstacle` say where they are.
+:meth:`Space.boxes_touch_obstacle` say where they are. :meth:`Space.neighbours` answers
+questions about one set of points (pairs within a distance, the k nearest) from cell lists
+it builds once (:mod:`flocking.neighbour_query`).
 
 >>> space = Space(box=(10.0, 10.0), walls=(False, True))
 >>> space.displacement([[1.0, 1.0]], [[9.0, 9.0]]).tolist()  # x wraps, y does not
