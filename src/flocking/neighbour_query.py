@@ -174,7 +174,7 @@ class NeighbourQuery:
         """The ``k`` nearest others of every point: ``(indices, distances)``, each
         ``(N, k)``, nearest first, ties to the lower index. The engine's rule for
         topological neighbours (:func:`flocking.rules.neighbours.knearest`), searched by
-        rings of cells about ``k / 2`` points wide."""
+        rings of cells that hold about ``k / 2`` (3D) to ``2 k / 3`` (2D) points each."""
         k = integer("k", k, 1)
         if k > self.n - 1:
             raise ParameterError(f"k: must be at most the number of other points, {self.n - 1} (got {k})")
