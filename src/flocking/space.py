@@ -41,6 +41,7 @@ from .rules import compile as compile_rules
 
 _R = compile_rules("cpu")
 
+
 def _minimum_image(dx, length, half):
     return _R.minimum_image(dx, length, half)
 

@@ -79,7 +79,7 @@ def labels(space: Space, positions, radius: float | None = None, k: int | None =
     parent = np.arange(len(positions))
     if k is not None:
         nearest, _ = query.nearest(k)
-        _join(parent, np.repeat(parent.copy(), k), nearest.ravel())
+        _join(parent, np.repeat(np.arange(len(positions)), k), nearest.ravel())
     else:
         for pairs in query.pair_blocks(radius):
             _join(parent, pairs.i, pairs.j)
