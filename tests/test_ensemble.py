@@ -43,6 +43,19 @@ def test_states_are_kept_until_the_next_step():
     assert ens.states is not first and ens.states[0].step == 1
 
 
+def test_states_by_kind_are_drawn_for_each_model():
+    ms = models()
+    ens = flocking.Ensemble(ms, ["aligned", "random", flocking.State.random(ms[2])], backend="cpu")
+    assert ens.states[0].polar_order() == pytest.approx(1.0, abs=1e-12)
+    for r in (1, 2):
+        expected = flocking.State.random(ms[r])
+        assert (ens.states[r].positions == expected.positions).all()
+        assert (ens.states[r].headings == expected.headings).all()
+    assert ens.advance(3).shape == (3, 3)
+    with pytest.raises(flocking.ParameterError, match=r"^state: must be a State, 'random' or 'aligned' \(got 'copy'\)$"):
+        flocking.Ensemble([BASE], ["copy"], backend="cpu")
+
+
 @pytest.mark.parametrize("change, message", [
     (dict(n=61), r"^models: every replica must have the same n \(model 0 has 60, model 1 61\)$"),
     (dict(radius=1.5), r"^models: every replica must have the same radius"),

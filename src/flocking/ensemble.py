@@ -33,7 +33,7 @@ import numpy as np
 from . import backends
 from .model import Model, ParameterError
 from .observables import extra_names, extra_observables
-from .simulation import Simulation, next_due
+from .simulation import Simulation, initial_state, next_due
 from .state import State, frame_arrays
 
 
@@ -87,11 +87,11 @@ class Ensemble:
             cls = backends.get(backend)
             if len(states) != len(models):
                 raise ParameterError(f"states: one per model ({len(models)}; got {len(states)})")
+            states = [initial_state(m, s, backend) for m, s in zip(models, states)]
             if len({s.step for s in states}) != 1:
                 raise ParameterError("states: replicas advance together, so they must all be at the same step")
             memories = memories or [None] * len(models)
             self._engine = None
-            states = [getattr(State, s)(m) if isinstance(s, str) else s for m, s in zip(models, states)]
             self._singles = [cls(m, s, memory=mem) for m, s, mem in zip(models, states, memories)]
             self._last = np.array([s.polar_order() for s in states])
 
