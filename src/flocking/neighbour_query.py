@@ -249,50 +249,74 @@ def _distance2(pos, i, j, lengths, half):
     return s
 
 
+@numba.njit(inline="always")
+def _cell_pairs(c, pos, start, near, lengths, half, cutoff2, action, a, b, d, e, m):
+    """The pairs closer than the cutoff that cell ``c`` owns: those with points in a cell
+    of no lower number (in its own cell, with a point of a later slot). Each is handed to
+    ``m = action(a, b, d, e, m, i, j, r2)`` (slots ``i``, ``j``, squared distance
+    ``r2``; ``a, b, d, e`` what the action writes to, four arguments rather than a tuple
+    so that the parallel loops see the arrays written); returns the last ``m``."""
+    for k in range(near.shape[1]):
+        c2 = near[c, k]
+        if c2 < c:
+            continue
+        for i in range(start[c], start[c + 1]):
+            for j in range(i + 1 if c2 == c else start[c2], start[c2 + 1]):
+                r2 = _distance2(pos, i, j, lengths, half)
+                if r2 < cutoff2:
+                    m = action(a, b, d, e, m, i, j, r2)
+    return m
+
+
+@numba.njit(inline="always")
+def _count(a, b, d, e, m, i, j, r2):
+    return m + 1
+
+
+@numba.njit(inline="always")
+def _store(order, out_i, out_j, out_r, m, i, j, r2):
+    """Pair ``m``, as point indices (smaller first) and its distance."""
+    p, q = order[i], order[j]
+    out_i[m], out_j[m] = min(p, q), max(p, q)
+    out_r[m] = math.sqrt(r2)
+    return m + 1
+
+
+@numba.njit(inline="always")
+def _bin(vec, counts, sums, scale, m, i, j, r2):
+    """One count and ``vec_i . vec_j`` in the pair's distance bin (``scale``: bins per
+    unit length)."""
+    b = min(int(math.sqrt(r2) * scale), len(counts) - 1)
+    dot = 0.0
+    for a in range(vec.shape[1]):
+        dot += vec[i, a] * vec[j, a]
+    counts[b] += 1.0
+    sums[b] += dot
+    return m
+
+
 @_pjit
 def _pair_counts(pos, start, near, lengths, half, cutoff2):
-    """Pairs closer than the cutoff that each cell owns: those with points in a cell of
-    no lower number (in its own cell, with a point of a later slot)."""
+    """The number of pairs each cell owns (:func:`_cell_pairs`)."""
     ncell = len(start) - 1
     counts = np.zeros(ncell, np.int64)
     for c in numba.prange(ncell):
-        m = 0
-        for k in range(near.shape[1]):
-            c2 = near[c, k]
-            if c2 < c:
-                continue
-            for i in range(start[c], start[c + 1]):
-                for j in range(i + 1 if c2 == c else start[c2], start[c2 + 1]):
-                    if _distance2(pos, i, j, lengths, half) < cutoff2:
-                        m += 1
-        counts[c] = m
+        counts[c] = _cell_pairs(c, pos, start, near, lengths, half, cutoff2, _count, 0, 0, 0, 0, 0)
     return counts
 
 
 @_pjit
 def _pair_fill(pos, order, start, near, lengths, half, cutoff2, first, last, offsets, out_i, out_j, out_r):
-    """The pairs of cells ``first .. last - 1`` (as :func:`_pair_counts` counts them),
-    each cell's from ``offsets[cell]``, as indices into the points given (smaller first)."""
+    """The pairs of cells ``first .. last - 1`` (:func:`_cell_pairs`), each cell's from
+    ``offsets[cell]``, as indices into the points given (smaller first)."""
     for c in numba.prange(first, last):
-        m = offsets[c]
-        for k in range(near.shape[1]):
-            c2 = near[c, k]
-            if c2 < c:
-                continue
-            for i in range(start[c], start[c + 1]):
-                for j in range(i + 1 if c2 == c else start[c2], start[c2 + 1]):
-                    r2 = _distance2(pos, i, j, lengths, half)
-                    if r2 < cutoff2:
-                        a, b = order[i], order[j]
-                        out_i[m], out_j[m] = min(a, b), max(a, b)
-                        out_r[m] = math.sqrt(r2)
-                        m += 1
+        _cell_pairs(c, pos, start, near, lengths, half, cutoff2, _store, order, out_i, out_j, out_r, offsets[c])
 
 
 @_pjit
 def _pair_histogram(pos, vec, start, near, lengths, half, cutoff, nbins, nchunks):
     """Per chunk of cells, pair counts and sums of ``vec_i . vec_j`` per distance bin
-    (pairs as :func:`_pair_counts` counts them), then summed over the chunks in order."""
+    (pairs as :func:`_cell_pairs` gives them), then summed over the chunks in order."""
     ncell = len(start) - 1
     counts = np.zeros((nchunks, nbins))
     sums = np.zeros((nchunks, nbins))
@@ -300,20 +324,7 @@ def _pair_histogram(pos, vec, start, near, lengths, half, cutoff, nbins, nchunks
     scale = nbins / cutoff
     for chunk in numba.prange(nchunks):
         for c in range(chunk * ncell // nchunks, (chunk + 1) * ncell // nchunks):
-            for k in range(near.shape[1]):
-                c2 = near[c, k]
-                if c2 < c:
-                    continue
-                for i in range(start[c], start[c + 1]):
-                    for j in range(i + 1 if c2 == c else start[c2], start[c2 + 1]):
-                        r2 = _distance2(pos, i, j, lengths, half)
-                        if r2 < cutoff2:
-                            b = min(int(math.sqrt(r2) * scale), nbins - 1)
-                            dot = 0.0
-                            for a in range(vec.shape[1]):
-                                dot += vec[i, a] * vec[j, a]
-                            counts[chunk, b] += 1.0
-                            sums[chunk, b] += dot
+            _cell_pairs(c, pos, start, near, lengths, half, cutoff2, _bin, vec, counts[chunk], sums[chunk], scale, 0)
     return counts.sum(axis=0), sums.sum(axis=0)
 
 
