@@ -170,7 +170,7 @@ def figure(gnf: dict, runs: list[dict], path: str, theme: str, size: str) -> Non
     """Left: dn against <n> with the fit, the paper's 0.8 and the Poisson 1/2; middle: the
     band profile in its frame (log scale of the excess); right: the Binder cumulant read
     from examples/finite_size.png."""
-    fig, axes = house.figure(size=size, theme=theme, ncols=3)
+    fig, axes = house.panels(size, theme, 3)
     colours = house.palette(theme)
     ax = axes[0]
     mean, std, fitted = gnf["mean"], gnf["std"], gnf["fitted"]

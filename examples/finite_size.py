@@ -118,7 +118,7 @@ def moments(sums: np.ndarray, n: int, noises, replicas: int) -> dict:
 
 def figure(results: dict, path: str, theme: str, size: str) -> None:
     """Order, susceptibility and Binder cumulant against the noise, a curve per L."""
-    fig, axes = house.figure(size=size, theme=theme, ncols=3)
+    fig, axes = house.panels(size, theme, 3)
     colours = house.palette(theme)
     for k, (length, res) in enumerate(sorted(results.items(), key=lambda item: float(item[0]))):
         for ax, name in zip(axes, ("order", "susceptibility", "binder")):

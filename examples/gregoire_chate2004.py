@@ -121,7 +121,7 @@ def valley(counts: np.ndarray, edges: np.ndarray) -> float:
 
 def figure(hist: dict, curves: dict, path: str, theme: str, size: str) -> None:
     """Three panels: the switching run's series, its histogram, and G(eta) per size."""
-    fig, axes = house.figure(size=size, theme=theme, ncols=3)
+    fig, axes = house.panels(size, theme, 3)
     colours = house.palette(theme)
     t = np.arange(1, len(hist["series"]) + 1)
     axes[0].plot(t, hist["series"], lw=0.4, color=colours[0])
@@ -136,16 +136,18 @@ def figure(hist: dict, curves: dict, path: str, theme: str, size: str) -> None:
     axes[1].axvline(hist["cut"], color=colours[1], lw=1, ls="--")
     house.label_axes(axes[1], r"$\varphi$", "probability density")
     house.legend(axes[1], theme, loc="upper left")
-    for k, (length, res) in enumerate(sorted(curves.items(), key=lambda item: float(item[0]))):
+    ordered = sorted(curves.items(), key=lambda item: float(item[0]))
+    for k, (length, res) in enumerate(ordered):
         axes[2].errorbar(res["noise"], res["binder"], yerr=res["binder_error"], fmt="o-", ms=3, lw=1, capsize=2,
                          color=colours[k % len(colours)], label=f"N = {res['n']}")
     axes[2].axhline(2 / 3, color=colours[-1], lw=0.8, ls=":")
     axes[2].axhline(1 / 3, color=colours[-1], lw=0.8, ls=":")
     house.label_axes(axes[2], "eta", "binder")
     house.legend(axes[2], theme, loc="lower left")  # left of the dip
+    lengths, counts = ", ".join(length for length, _ in ordered), ", ".join(str(res["n"]) for _, res in ordered)
     house.title(fig, "Discontinuous onset with vectorial noise (Grégoire and Chaté 2004)",
-                r"$\rho$ = 2 ($L$ = 16, 32 for $N$ = 512, 2048) · $v_0$ = 0.5 · R = 1 · backward update · one run per point, "
-               "bars: jackknife errors")
+                rf"$\rho$ = 2 ($L$ = {lengths} for $N$ = {counts}) · $v_0$ = 0.5 · R = 1 · backward update · "
+                "one run per point, bars: jackknife errors")
     house.save(fig, path)
 
 

@@ -101,6 +101,36 @@ def test_sizes_fonts_and_pixels():
     assert scene.pixels == (800, 448) and scene.rgb().shape == (448, 800, 3)  # multiples of 16 for H.264
 
 
+@pytest.mark.parametrize("size, count, grid", [
+    ("column", 4, (4, 1)), ("page", 3, (1, 3)), ("page", 4, (2, 2)), ("page", 5, (2, 3)), ("slide", 3, (2, 2)),
+    ((14.0, 3.0), 4, (1, 4)), ((12.0, 3.0), 4, (2, 2)),
+])
+def test_panels_fit_the_width_and_keep_every_label_inside(size, count, grid):
+    fig, axes = style.panels(size, "light", count)
+    assert len(axes) == count == len(fig.axes)
+    assert axes[0].get_subplotspec().get_geometry()[:2] == grid
+    width, height, fontsize = style.resolve_size(size)
+    assert fig.get_size_inches()[0] == width
+    assert fig.get_size_inches()[1] == pytest.approx(height if grid[0] == 1 else 0.7 * height * grid[0])
+    for ax in axes:
+        assert ax.get_position().width * width >= 0.6 * style.PANEL_EMS * fontsize / 72  # the plot, less its ticks
+        style.label_axes(ax, r"noise $\eta$", "binder")
+        ax.set_title("a panel title", fontsize=fontsize)
+    style.title(fig, "A title that is long enough to wrap at a column's width, or so", "a · caption")
+    fig.canvas.draw()
+    assert overflow(fig) <= 1.0
+    for a, b in zip(axes, axes[1:]):
+        assert not overlapping(fig, a, b)
+
+
+def test_panels_refuse_a_count_or_size_they_cannot_lay_out():
+    for bad in (0, -1, 2.5, True, "3"):
+        with pytest.raises(flocking.ParameterError, match=r"^count: must be a whole number >= 1"):
+            style.panels("page", "light", bad)
+    with pytest.raises(flocking.ParameterError, match=r"^size: must be one of column, page, slide or \(width, height\)"):
+        style.panels(5.0, "light", 2)
+
+
 def test_wrapping_counts_what_mathtext_shows_and_never_splits_a_formula():
     assert style.visible_length(r"$\eta$ = 0.4 (vectorial)") == len("x = 0.4 (vectorial)")
     fig, _ = style.figure("column")

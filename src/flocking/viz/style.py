@@ -35,6 +35,10 @@ SIZES = {
     "slide": (8.0, 4.5),
 }
 
+#: The narrowest a panel of :func:`panels` is drawn, in font sizes (ems): 18 ems is
+#: 2.25 in at page width's 9 pt, room for a tick column, a label and a legend.
+PANEL_EMS = 18.0
+
 #: Base font size (points) of each size: what journals ask of a column figure, what
 #: reads from the back of a room on a slide.
 FONT_SIZES = {"column": 8.0, "page": 9.0, "slide": 13.0}
@@ -162,6 +166,38 @@ def figure(size="column", theme="dark", nrows: int = 1, ncols: int = 1, **subplo
     fig = new_figure(width, height, t, fontsize)
     axes = fig.subplots(nrows, ncols, squeeze=True, **subplots)
     for ax in np.atleast_1d(axes).ravel():
+        style_axes(ax, t)
+    return fig, axes
+
+
+def panels(size="column", theme="dark", count: int = 1, **subplots):
+    """A new ``(fig, axes)`` of ``count`` panels laid out for the width of ``size``
+    (as :func:`figure`; ``axes`` a list): as many side by side as stay at least
+    :data:`PANEL_EMS` font sizes wide each (three at page width, one in a column, two on a
+    slide), the rest in further rows, each row as tall as the size is (0.7 of that when
+    there are several rows) and any empty slot of the last row removed.
+
+    >>> fig, axes = panels("column", "light", 3)
+    >>> len(axes), fig.get_size_inches().round(2).tolist()
+    (3, [3.4, 5.46])
+    >>> [a.get_subplotspec().get_geometry()[:2] for a in panels("page", "light", 4)[1]][0]
+    (2, 2)
+    """
+    t = get_theme(theme)
+    width, height, size_pt = resolve_size(size)
+    if height is None:
+        raise ParameterError(f"size: must be one of {', '.join(SIZES)} or (width, height) (got {size!r})")
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+        raise ParameterError(f"count: must be a whole number >= 1 (got {count!r})")
+    across = max(1, min(count, int(width // (PANEL_EMS * size_pt / 72))))
+    rows = -(-count // across)
+    across = -(-count // rows)  # as even as the rows allow: four panels as 2 x 2, not 3 + 1
+    fig = new_figure(width, height if rows == 1 else 0.7 * height * rows, t, size_pt)
+    grid = fig.subplots(rows, across, squeeze=False, **subplots).ravel()
+    for ax in grid[count:]:
+        ax.remove()
+    axes = list(grid[:count])
+    for ax in axes:
         style_axes(ax, t)
     return fig, axes
 
