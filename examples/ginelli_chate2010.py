@@ -133,10 +133,11 @@ def main() -> None:
     t = house.get_theme(args.theme)
     width, _, fs = house.resolve_size(args.size)
     strip = 0.82 * width * BAND_BOX[1] / BAND_BOX[0]  # a snapshot's height, drawn to scale
-    lower = 0.3 * width
-    rows = [strip + 0.6, strip + 0.6, lower + 0.6]  # each with room for its title and ticks
+    side = width >= 2 * house.PANEL_EMS * fs / 72  # the profile and the order side by side (not in a column)
+    lower = 0.3 * width if side else 0.45 * width
+    rows = [strip + 0.6, strip + 0.6] + [lower + 0.6] * (1 if side else 2)  # each with room for title and ticks
     fig = house.new_figure(width, sum(rows) + 1.5, t, fs)
-    grid = fig.add_gridspec(3, 2, height_ratios=rows)
+    grid = fig.add_gridspec(len(rows), 2 if side else 1, height_ratios=rows)
     colours = house.palette(t)
     for row, neighbours in enumerate(("metric", "voronoi")):
         ax = fig.add_subplot(grid[row, :])
@@ -144,8 +145,8 @@ def main() -> None:
         plot_frame(last_frame(bands[neighbours][3]), ax=ax, theme=args.theme, style="density")
         house.label_axes(ax, "x" if row else None, "y")
         (cm, ce) = bands[neighbours][0]
-        ax.set_title(f"{neighbours} neighbours, step {STEPS:,}: band contrast {cm:.2f} $\\pm$ {ce:.2f}",
-                     color=t.text, fontsize=house.fontsize(fig))
+        ax.set_title(f"{neighbours} neighbours, step {STEPS:,}:{' ' if side else chr(10)}band contrast {cm:.2f} "
+                     f"$\\pm$ {ce:.2f}", color=t.text, fontsize=house.fontsize(fig))
     profile_ax = fig.add_subplot(grid[2, 0])
     house.style_axes(profile_ax, t)
     centres = (np.arange(int(round(BAND_BOX[0] / SLAB))) + 0.5) * SLAB
@@ -154,7 +155,7 @@ def main() -> None:
     profile_ax.axhline(1.0, color=t.edge, lw=0.8, ls=":")
     house.label_axes(profile_ax, "x (units of R)", "density / mean, slabs 4 wide")
     house.legend(profile_ax, t, loc="upper right")
-    order_ax = fig.add_subplot(grid[2, 1])
+    order_ax = fig.add_subplot(grid[2, 1] if side else grid[3, 0])
     house.style_axes(order_ax, t)
     styles = {("voronoi", SIZES[0]): (colours[1], "o", "--"), ("voronoi", SIZES[-1]): (colours[1], "s", "-"),
               ("metric", SIZES[-1]): (colours[0], "D", "-")}
@@ -169,7 +170,7 @@ def main() -> None:
                 f"Ginelli and Chaté 2010 · density 2, $v_0$ = 0.5, $R$ = 1, vectorial noise, backward update · top: "
                 f"{BAND_BOX[0]:g} × {BAND_BOX[1]:g} box, $\\eta$ = {BAND_NOISE:g}, aligned start, the same seed; "
                 f"contrast: variance of the slab density over its mean less shot noise, mean over steps "
-                f"{STEPS // 2:,}-{STEPS:,} · right: mean over the second half of {ORDER_STEPS:,} steps, bars from "
+                f"{STEPS // 2:,}-{STEPS:,} · {'right' if side else 'last'}: mean over the second half of {ORDER_STEPS:,} steps, bars from "
                 "the autocorrelation time · the paper's numbers could not be read, so none are drawn")
     house.save(fig, args.out)
 
