@@ -94,11 +94,19 @@ def main() -> None:
 
     t = house.get_theme(args.theme)
     width, _, fs = house.resolve_size(args.size)
-    fig = house.new_figure(width, 0.42 * width + 1.0, t, fs)
-    grid = fig.add_gridspec(2, 3, width_ratios=[1, 1, 1.3])
-    snapshots = [fig.add_subplot(grid[:, c]) for c in range(2)]
-    cluster_ax = fig.add_subplot(grid[0, 2])
-    order_ax = fig.add_subplot(grid[1, 2], sharex=cluster_ax)
+    side = width >= 2 * house.PANEL_EMS * fs / 72  # the snapshots and the charts side by side (not in a column)
+    if side:
+        fig = house.new_figure(width, 0.42 * width + 1.0, t, fs)
+        grid = fig.add_gridspec(2, 3, width_ratios=[1, 1, 1.3])
+        snapshots = [fig.add_subplot(grid[:, c]) for c in range(2)]
+        cluster_ax = fig.add_subplot(grid[0, 2])
+        order_ax = fig.add_subplot(grid[1, 2], sharex=cluster_ax)
+    else:  # the snapshots above the charts
+        fig = house.new_figure(width, 1.3 * width + 1.6, t, fs)
+        grid = fig.add_gridspec(3, 2, height_ratios=[1.2, 1, 1])
+        snapshots = [fig.add_subplot(grid[0, c]) for c in range(2)]
+        cluster_ax = fig.add_subplot(grid[1, :])
+        order_ax = fig.add_subplot(grid[2, :], sharex=cluster_ax)
     colours = house.palette(t)
     for ax, noise in zip(snapshots, SHOWN):
         house.style_axes(ax, t)
@@ -106,8 +114,9 @@ def main() -> None:
         house.label_axes(ax, "x", "y")
         ax.set_title(f"$\\eta$ = {noise:g}, step {STEPS:,}", color=t.text, fontsize=house.fontsize(fig))
     # one quantity a panel, each a share in [0, 1]; beta = 0 beside both at eta = 0.1
-    for ax, row, marker, label, plain_point in ((cluster_ax, 0, "o", "largest cluster / $N$", (bm, be)),
-                                               (order_ax, 1, "s", "polar order $\\varphi$", (qm, qe))):
+    gap = "\n" if side else " "  # a short chart's label on two lines
+    for ax, row, marker, label, plain_point in ((cluster_ax, 0, "o", f"largest{gap}cluster / $N$", (bm, be)),
+                                               (order_ax, 1, "s", f"polar{gap}order $\\varphi$", (qm, qe))):
         house.style_axes(ax, t)
         ax.errorbar(NOISES, [r[row][0] for r in rows], yerr=[r[row][1] for r in rows], color=colours[0],
                     marker=marker, ms=4, lw=1.2, capsize=2.5, label=f"$\\beta$ = {BASE['cohesion']:g}")
