@@ -10,12 +10,14 @@ moves with the velocity it had before the update (``update = "forward"``); rando
 and headings at t = 0; v_a = |sum of the velocities| / (N v0), our polar order. The density
 is N / L^2, so rho = 4 gives L = sqrt(N / 4).
 
-Every point runs ``--replicas`` systems (seeds) for ``--steps`` steps from a random start;
-each system's v_a is its time mean after ``--discard`` steps; a point is the mean over the
-systems, its error bar the standard error of that mean (the spread between systems). The
-exponents are fitted as the paper plots them: for beta, a straight line in
-ln v_a against ln((eta_c - eta) / eta_c) for ``--beta-n`` (4000: the largest N whose
-runs reach a steady state in 8000 steps; N = 10 000 does not), over the noises from
+Every point runs ``--replicas`` systems (seeds) for ``--steps`` steps from a random start,
+except that N >= ``--aligned-from`` (10 000) starts with every heading equal (positions
+still random): from random headings N = 10 000 has not settled after 8000 steps, and at
+N = 4000 the two starts give the same v_a within the errors. Each system's v_a is its time
+mean after ``--discard`` steps; a point is the mean over the systems, its error bar the
+standard error of that mean (the spread between systems). The exponents are fitted as the
+paper plots them: for beta, a straight line in ln v_a against ln((eta_c - eta) / eta_c)
+for ``--beta-n`` (4000: the largest N run from the paper's random start), over the noises from
 ``--beta-from`` up to the last one below the peak of the susceptibility
 chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a parameter of the
 fit (the value that makes the line straightest); for delta, a straight line
@@ -23,8 +25,8 @@ in ln v_a against ln rho over the densities up to ``--delta-max``. Their interva
 16th to 84th percentiles over ``--bootstrap`` resamplings of the systems of every point.
 
     python examples/vicsek1995.py --out examples/vicsek1995-figures.png
-    # 1110 CPU-seconds on one thread (the default --threads 1): 18.7 min of wall clock on the
-    # project's 2 cores with nothing else running; N = 10 000 takes 727 s of it, N = 4000 269 s.
+    # 973 CPU-seconds on one thread (the default --threads 1): 17.0 min of wall clock on the
+    # project's 2 cores; N = 10 000 takes 616 s of it, N = 4000 276 s.
     # The figure committed.
 
 The paper's numbers beside ours: beta = 0.45 and delta = 0.35 as the paper quotes them
@@ -49,17 +51,19 @@ BASE = dict(speed=0.03, radius=1.0, update="forward", noise_type="angular", nois
 PAPER = {"beta": (0.45, 0.07), "delta": (0.35, 0.06)}  # the paper's text, value and its +-
 NOISES = (0.0, 0.5, 1.0, 1.5, 2.0, 2.25, 2.5, 2.75, 3.0, 3.25, 3.5, 3.75, 4.0, 4.5, 5.0)
 SIZES = (40, 100, 400, 4000, 10000)
+BETA_POINTS = 3  # the fit of beta has three parameters (beta, eta_c, the amplitude)
 DENSITIES = (0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 
 
 def order(n: int, density: float, noises, replicas: int, steps: int, discard: int,
-          seed: int) -> tuple[np.ndarray, np.ndarray]:
+          seed: int, start: str = "random") -> tuple[np.ndarray, np.ndarray]:
     """Each system's time means of v_a and of v_a^2 after ``discard`` steps, two arrays
     ``(len(noises), replicas)``: the systems of every noise (``n`` particles at
-    ``density``) advanced as one ensemble."""
+    ``density``, from random positions and ``start`` headings: ``"random"`` or
+    ``"aligned"``) advanced as one ensemble."""
     models = [Model(n=n, density=density, noise=eta, seed=seed + 1000 * i + r, **BASE)
               for i, eta in enumerate(noises) for r in range(replicas)]
-    ens = Ensemble(models, backend="cpu")
+    ens = Ensemble(models, [start] * len(models), backend="cpu")
     ens.advance(discard)
     phi = ens.advance(steps - discard)
     shape = (len(noises), replicas)
@@ -144,16 +148,11 @@ def power_law(ax, args, colours, name: str, x, res: dict, label: str, xlabel: st
 
 def figure(res: dict, args, path: str) -> None:
     """Fig. 2a, Fig. 2b and the two fits in log-log form, the paper's exponents beside ours."""
-    t = house.get_theme(args.theme)
-    width, _, fs = house.resolve_size(args.size)
-    fig = house.new_figure(width, 0.8 * width, t, fs)
-    (a, b), (c, d) = fig.subplots(2, 2)
-    for ax in (a, b, c, d):
-        house.style_axes(ax, t)
+    fig, (a, b, c, d) = house.panels(args.size, args.theme, 4)
     colours = house.palette(args.theme)
     for k, (n, (m, e)) in enumerate(res["fig2a"].items()):
         a.errorbar(args.noises, m, yerr=e, fmt="o-", ms=3, lw=1, capsize=2, color=colours[k % len(colours)],
-                   label=f"N = {n}" + (" (not steady)" if n > args.beta_n else ""))
+                   label=f"N = {n}" + (" (aligned start)" if n >= args.aligned_from else ""))
     house.label_axes(a, r"noise $\eta$", r"$v_a$")
     a.set_ylim(0, 1.02)
     a.set_title(r"Fig. 2a: $\rho$ = 4", fontsize=house.fontsize(fig))
@@ -164,15 +163,22 @@ def figure(res: dict, args, path: str) -> None:
     b.set_ylim(0, 1.02)
     b.set_title(r"Fig. 2b: L = 20, $\eta$ = 2", fontsize=house.fontsize(fig))
 
-    eta_c = res["beta"]["fit"][1]
-    u = (eta_c - np.asarray(res["beta"]["noises"])) / eta_c
-    power_law(c, args, colours, "beta", u, res["beta"], f"N = {res['beta']['n']}",
-              rf"$(\eta_c - \eta)/\eta_c$, $\eta_c$ = {eta_c:.2f}", r"$\beta$: Fig. 2a below $\eta_c$")
+    if res["beta"] is None:
+        c.text(0.5, 0.5, f"$\\beta$ not fitted:\nfewer than {BETA_POINTS} noises\nbelow the peak of $\\chi$", ha="center",
+               va="center", transform=c.transAxes, color=house.get_theme(args.theme).text, fontsize=house.fontsize(fig))
+        c.set_axis_off()
+    else:
+        eta_c = res["beta"]["fit"][1]
+        u = (eta_c - np.asarray(res["beta"]["noises"])) / eta_c
+        power_law(c, args, colours, "beta", u, res["beta"], f"N = {res['beta']['n']}",
+                  rf"$(\eta_c - \eta)/\eta_c$, $\eta_c$ = {eta_c:.2f}", r"$\beta$: Fig. 2a below $\eta_c$")
     d.errorbar(args.densities, m, yerr=e, fmt="o", ms=3, capsize=2, color=colours[0], alpha=0.35)
     power_law(d, args, colours, "delta", np.asarray(res["delta"]["densities"]), res["delta"], "fitted points", r"density $\rho$", r"$\delta$: Fig. 2b at small density")
+    big = [n for n in args.sizes if n >= args.aligned_from]
+    aligned = f" (headings aligned for N = {', '.join(f'{n:,}' for n in big)})" if big else ""
     house.title(fig, "Vicsek et al. 1995: order against noise and density, and the exponents",
                 f"$v_0$ = 0.03 · R = 1 · forward update · noise uniform in [$-\\eta/2$, $\\eta/2$] · "
-                f"{args.replicas} systems a point, {args.steps:,} steps, first {args.discard:,} left out · "
+                f"random start{aligned} · {args.replicas} systems a point, {args.steps:,} steps, first {args.discard:,} left out · "
                 "bars: standard errors · dashed: the paper's exponents drawn through our points "
                 "(its curves could not be read here)")
     house.save(fig, path)
@@ -186,8 +192,10 @@ def parse(argv=None):
     p.add_argument("--replicas", type=int, default=4)
     p.add_argument("--steps", type=int, default=8_000)
     p.add_argument("--discard", type=int, default=3_000)
+    p.add_argument("--aligned-from", type=int, default=10_000,
+                   help="the smallest N started with every heading equal (smaller N: random headings, as the paper)")
     p.add_argument("--beta-n", type=int, default=4000,
-                   help="the N fitted for beta: the largest whose runs reach a steady state (one of --sizes)")
+                   help="the N fitted for beta, one of --sizes (default: the largest run from random headings)")
     p.add_argument("--beta-from", type=float, default=1.0,
                    help="the lowest noise fitted for beta (the highest: the last below the susceptibility's peak)")
     p.add_argument("--delta-max", type=float, default=1.0, help="the largest density fitted for delta")
@@ -204,6 +212,10 @@ def parse(argv=None):
     args.densities = [float(x) for x in args.densities.split(",")]
     if args.beta_n not in args.sizes:
         p.error(f"--beta-n must be one of --sizes {args.sizes} (got {args.beta_n})")
+    if sum(eta >= args.beta_from for eta in args.noises) < BETA_POINTS:
+        p.error(f"--beta-from: at least {BETA_POINTS} of --noises must be >= it, to fit beta (got {args.beta_from:g})")
+    if sum(rho <= args.delta_max for rho in args.densities) < 2:
+        p.error(f"--delta-max: at least 2 of --densities must be <= it, to fit delta (got {args.delta_max:g})")
     house.check_format(args.out)
     return args
 
@@ -216,12 +228,14 @@ def main(argv=None) -> dict:
     per_size = {}
     for n in args.sizes:
         t0 = time.perf_counter()
-        m1, m2 = order(n, 4.0, args.noises, args.replicas, args.steps, args.discard, args.seed)
+        start = "aligned" if n >= args.aligned_from else "random"
+        m1, m2 = order(n, 4.0, args.noises, args.replicas, args.steps, args.discard, args.seed, start)
         per_size[n] = m1
         m, e = mean_error(m1)
         res["fig2a"][n] = (m, e)
         res["chi"][n] = susceptibility(n, m1, m2)
-        print(f"Fig. 2a  N = {n} (L = {np.sqrt(n / 4):.2f}), {time.perf_counter() - t0:.0f} s", flush=True)
+        print(f"Fig. 2a  N = {n} (L = {np.sqrt(n / 4):.2f}), {start} headings at the start, "
+              f"{time.perf_counter() - t0:.0f} s", flush=True)
         for eta, mi, ei, chi in zip(args.noises, m, e, res["chi"][n]):
             print(f"  eta {eta:<5g} v_a {mi:.3f} +- {ei:.3f}   chi {chi:.2f}")
 
@@ -237,14 +251,20 @@ def main(argv=None) -> dict:
     peak = args.noises[int(np.argmax(res["chi"][n]))]
     keep = [i for i, eta in enumerate(args.noises) if args.beta_from <= eta < peak]
     noises = np.asarray(args.noises)[keep]
-    per = per_size[n][keep]
-    bm, be = mean_error(per)
-    fit = fit_beta(noises, bm, be)
-    boot = bootstrap(fit_beta, noises, per, args.bootstrap, args.seed)
-    res["beta"] = {"n": n, "noises": noises, "mean": bm, "error": be, "fit": fit, "interval": interval(boot)}
-    print(f"beta (N = {n}, eta from {args.beta_from:g} to below the susceptibility's peak at {peak:g}, "
-          f"{len(keep)} points): {fit[0]:.3f}, 68% interval [{res['beta']['interval'][0]:.3f}, "
-          f"{res['beta']['interval'][1]:.3f}], eta_c(L) = {fit[1]:.3f}; paper {PAPER['beta'][0]} +- {PAPER['beta'][1]}")
+    if len(keep) < BETA_POINTS:
+        res["beta"] = None
+        print(f"beta (N = {n}): not fitted: {len(keep)} noises from {args.beta_from:g} to below the "
+              f"susceptibility's peak at {peak:g}, fewer than {BETA_POINTS}")
+    else:
+        per = per_size[n][keep]
+        bm, be = mean_error(per)
+        fit = fit_beta(noises, bm, be)
+        boot = bootstrap(fit_beta, noises, per, args.bootstrap, args.seed)
+        res["beta"] = {"n": n, "noises": noises, "mean": bm, "error": be, "fit": fit, "interval": interval(boot)}
+        print(f"beta (N = {n}, eta from {args.beta_from:g} to below the susceptibility's peak at {peak:g}, "
+              f"{len(keep)} points): {fit[0]:.3f}, 68% interval [{res['beta']['interval'][0]:.3f}, "
+              f"{res['beta']['interval'][1]:.3f}], eta_c(L) = {fit[1]:.3f}; paper {PAPER['beta'][0]} +- "
+              f"{PAPER['beta'][1]}")
 
     keep = [i for i, rho in enumerate(args.densities) if rho <= args.delta_max]
     rho = np.asarray(args.densities)[keep]
