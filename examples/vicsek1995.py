@@ -44,7 +44,7 @@ import numpy as np
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 from scipy.optimize import least_squares
 
-from flocking import Ensemble, Model
+from flocking import Ensemble, Model, ParameterError
 from flocking.viz import style as house
 
 BASE = dict(speed=0.03, radius=1.0, update="forward", noise_type="angular", noise_scale="radians")
@@ -207,16 +207,38 @@ def parse(argv=None):
     p.add_argument("--theme", default="light")
     p.add_argument("--size", default="page")
     args = p.parse_args(argv)
-    args.sizes = [int(x) for x in args.sizes.split(",")]
-    args.noises = [float(x) for x in args.noises.split(",")]
-    args.densities = [float(x) for x in args.densities.split(",")]
+
+    def numbers(name: str, kind, low: float, low_open: bool = False) -> list:
+        text = getattr(args, name.lstrip("-").replace("-", "_"))
+        try:
+            values = [kind(x) for x in text.split(",")]
+        except ValueError:
+            values = []
+        if not values or any(not (v > low if low_open else v >= low) for v in values):
+            p.error(f"{name}: comma-separated numbers, each {'>' if low_open else '>='} {low:g} (got {text!r})")
+        return values
+
+    args.sizes = numbers("--sizes", int, 1)
+    args.noises = numbers("--noises", float, 0.0)
+    args.densities = numbers("--densities", float, 0.0, low_open=True)
+    for name, value, low in (("--replicas", args.replicas, 2), ("--steps", args.steps, 1), ("--discard", args.discard, 0),
+                             ("--bootstrap", args.bootstrap, 1), ("--threads", args.threads, 1)):
+        if value < low:
+            p.error(f"{name}: must be >= {low} (got {value})")
+    if args.discard >= args.steps:
+        p.error(f"--discard: must be below --steps {args.steps} (got {args.discard})")
     if args.beta_n not in args.sizes:
         p.error(f"--beta-n must be one of --sizes {args.sizes} (got {args.beta_n})")
     if sum(eta >= args.beta_from for eta in args.noises) < BETA_POINTS:
         p.error(f"--beta-from: at least {BETA_POINTS} of --noises must be >= it, to fit beta (got {args.beta_from:g})")
     if sum(rho <= args.delta_max for rho in args.densities) < 2:
         p.error(f"--delta-max: at least 2 of --densities must be <= it, to fit delta (got {args.delta_max:g})")
-    house.check_format(args.out)
+    try:
+        house.check_format(args.out)
+        house.get_theme(args.theme)
+        house.resolve_size(args.size)
+    except ParameterError as error:
+        p.error(str(error))
     return args
 
 

@@ -106,8 +106,18 @@ def test_the_fits_recover_exact_power_laws():
     (["--beta-n", "500"], r"--beta-n must be one of --sizes"),
     (["--noises", "0,1,2", "--beta-from", "1.5"], r"--beta-from: at least 3 of --noises must be >= it"),
     (["--delta-max", "0.1"], r"--delta-max: at least 2 of --densities must be <= it"),
+    (["--sizes", "40,4k"], r"--sizes: comma-separated numbers, each >= 1 \(got '40,4k'\)$"),
+    (["--noises=-1,1,2,3"], r"--noises: comma-separated numbers, each >= 0"),
+    (["--densities", "0,1"], r"--densities: comma-separated numbers, each > 0"),
+    (["--replicas", "1"], r"--replicas: must be >= 2 \(got 1\)$"),
+    (["--discard", "8000"], r"--discard: must be below --steps 8000 \(got 8000\)$"),
+    (["--bootstrap", "0"], r"--bootstrap: must be >= 1"),
+    (["--threads", "0"], r"--threads: must be >= 1"),
+    (["--out", "v.jpg"], r"output: must end in .png, .svg or .pdf"),
+    (["--theme", "pink"], r"theme: must be one of dark, light"),
+    (["--size", "poster"], r"size: must be one of column, page, slide"),
 ])
-def test_a_fit_without_points_is_refused_before_any_run(argv, message, capsys):
+def test_bad_arguments_are_refused_in_one_line_before_any_run(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_:
         vicsek.parse(argv)
     assert exit_.value.code == 2
