@@ -250,6 +250,7 @@ def parse(argv=None):
     p.add_argument("--theme", default="light")
     p.add_argument("--size", default="page")
     args = p.parse_args(argv)
+    house.check_figure_args(p, args)
     try:
         args.band_boxes = [float(x) for x in args.band_boxes.split(",")]
     except ValueError:

@@ -78,7 +78,7 @@ def main() -> None:
     parser.add_argument("--theme", default="light", help="dark or light")
     parser.add_argument("--size", default="page", help="column, page or slide")
     args = parser.parse_args()
-    house.check_format(args.out)
+    house.check_figure_args(parser, args)
     started = time.perf_counter()
     rows, last = [], {}
     for noise in NOISES:

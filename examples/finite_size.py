@@ -148,6 +148,7 @@ def parse(argv=None):
     p.add_argument("--theme", default="light")
     p.add_argument("--size", default="page")
     args = p.parse_args(argv)
+    house.check_figure_args(p, args)
     args.sizes = [float(x) for x in args.sizes.split(",")]
     args.noises = [float(x) for x in args.noises.split(",")]
     return args

@@ -61,7 +61,7 @@ def main() -> None:
     parser.add_argument("--theme", default="light", help="dark or light")
     parser.add_argument("--size", default="column", help="column, page or slide")
     args = parser.parse_args()
-    house.check_format(args.out)
+    house.check_figure_args(parser, args)
     started = time.perf_counter()
     means, errors = [], []
     for p in FRACTIONS:

@@ -44,7 +44,7 @@ import numpy as np
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 from scipy.optimize import least_squares
 
-from flocking import Ensemble, Model, ParameterError
+from flocking import Ensemble, Model
 from flocking.viz import style as house
 
 BASE = dict(speed=0.03, radius=1.0, update="forward", noise_type="angular", noise_scale="radians")
@@ -233,12 +233,7 @@ def parse(argv=None):
         p.error(f"--beta-from: at least {BETA_POINTS} of --noises must be >= it, to fit beta (got {args.beta_from:g})")
     if sum(rho <= args.delta_max for rho in args.densities) < 2:
         p.error(f"--delta-max: at least 2 of --densities must be <= it, to fit delta (got {args.delta_max:g})")
-    try:
-        house.check_format(args.out)
-        house.get_theme(args.theme)
-        house.resolve_size(args.size)
-    except ParameterError as error:
-        p.error(str(error))
+    house.check_figure_args(p, args)
     return args
 
 

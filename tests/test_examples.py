@@ -4,6 +4,8 @@ examples/README.md quotes, finds the right neighbour pairs and bands."""
 from __future__ import annotations
 
 import pathlib
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -15,6 +17,7 @@ from flocking.trajectory import Frame
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
 SWEEPS = sorted(p for p in EXAMPLES.glob("*.toml") if "[grid]" in p.read_text())
 RUNS = sorted(set(EXAMPLES.glob("*.toml")) - set(SWEEPS))
+FIGURE_SCRIPTS = sorted(p for p in EXAMPLES.glob("*.py") if all(o in p.read_text() for o in ('"--out"', '"--theme"')))
 
 
 measure = load_script("examples/measure.py")
@@ -127,3 +130,25 @@ def test_measure_rounds_as_the_readme_quotes():
     assert [measure.short(v) for v in (0.9583, -0.7237, 0.01512, 0.1)] == ["0.96", "-0.72", "0.015", "0.10"]
     assert measure.story({"obstacles": [{}]}, ("A",)) == measure.MILLING
     assert [key for key, _, _ in measure.story({}, ("A", "B"))] == ["phi_A", "phi_B", "phi"]
+
+
+def test_the_figure_scripts_were_found():
+    assert {p.stem for p in FIGURE_SCRIPTS} >= {"vicsek1995", "gregoire_chate2004", "chate2008", "finite_size",
+                                                "ginelli_chate2010", "cohesion", "informed_individuals"}
+
+
+@pytest.mark.parametrize("path", FIGURE_SCRIPTS, ids=lambda p: p.stem)
+def test_a_figure_script_refuses_a_bad_figure_option_before_it_runs(path, tmp_path):
+    # a format, theme or size the figure cannot take ends the script at once, in one line,
+    # with nothing written, rather than in a traceback after its runs
+    good = {"--out": str(tmp_path / "figure.png"), "--theme": "light", "--size": "page"}
+    bad = {"--out": (str(tmp_path / "figure.jpg"), "output: must end in .png, .svg or .pdf"),
+           "--theme": ("pink", "theme: must be one of dark, light (got 'pink')"),
+           "--size": ("poster", "size: must be one of column, page, slide")}
+    for option, (value, message) in bad.items():
+        argv = [word for pair in {**good, option: value}.items() for word in pair]
+        done = subprocess.run([sys.executable, str(path), *argv], capture_output=True, text=True, timeout=120,
+                              cwd=tmp_path)
+        assert done.returncode == 2, done.stderr
+        assert message in done.stderr.splitlines()[-1]
+        assert "Traceback" not in done.stderr and list(tmp_path.iterdir()) == []

@@ -110,6 +110,18 @@ def check_format(path: str | os.PathLike) -> str:
     return ext
 
 
+def check_figure_args(parser, args) -> None:
+    """Exit through ``parser.error`` (its one line, status 2) if ``args.out``,
+    ``args.theme`` or ``args.size`` (an example script's options) would be refused when
+    its figure is drawn and saved: checked before the script's runs, so nothing is lost."""
+    try:
+        check_format(args.out)
+        get_theme(args.theme)
+        resolve_size(args.size)
+    except ParameterError as error:
+        parser.error(str(error))
+
+
 def resolve_size(size) -> tuple[float, float | None, float]:
     """``(width, height, font size)`` of a figure size: a name of :data:`SIZES`, a width
     in inches (height ``None``: the caller's choice) or ``(width, height)``.
