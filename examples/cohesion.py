@@ -94,7 +94,7 @@ def main() -> None:
 
     t = house.get_theme(args.theme)
     width, _, fs = house.resolve_size(args.size)
-    side = width >= 2 * house.PANEL_EMS * fs / 72  # the snapshots and the charts side by side (not in a column)
+    side = house.panels_across(width, fs) >= 2  # the snapshots and the charts side by side (not in a column)
     if side:
         fig = house.new_figure(width, 0.42 * width + 1.0, t, fs)
         grid = fig.add_gridspec(2, 3, width_ratios=[1, 1, 1.3])

@@ -133,7 +133,7 @@ def main() -> None:
     t = house.get_theme(args.theme)
     width, _, fs = house.resolve_size(args.size)
     strip = 0.82 * width * BAND_BOX[1] / BAND_BOX[0]  # a snapshot's height, drawn to scale
-    side = width >= 2 * house.PANEL_EMS * fs / 72  # the profile and the order side by side (not in a column)
+    side = house.panels_across(width, fs) >= 2  # the profile and the order side by side (not in a column)
     lower = 0.3 * width if side else 0.45 * width
     rows = [strip + 0.6, strip + 0.6] + [lower + 0.6] * (1 if side else 2)  # each with room for title and ticks
     fig = house.new_figure(width, sum(rows) + 1.5, t, fs)

@@ -182,11 +182,21 @@ def figure(size="column", theme="dark", nrows: int = 1, ncols: int = 1, **subplo
     return fig, axes
 
 
+def panels_across(width: float, fontsize: float) -> int:
+    """How many panels fit side by side in ``width`` inches at ``fontsize`` points, each
+    at least :data:`PANEL_EMS` font sizes wide (at least one).
+
+    >>> panels_across(3.4, 8.0), panels_across(7.0, 9.0), panels_across(8.0, 13.0)
+    (1, 3, 2)
+    """
+    return max(1, int(width // (PANEL_EMS * fontsize / 72)))
+
+
 def panels(size="column", theme="dark", count: int = 1, **subplots):
     """A new ``(fig, axes)`` of ``count`` panels laid out for the width of ``size``
     (as :func:`figure`; ``axes`` a list): as many side by side as stay at least
-    :data:`PANEL_EMS` font sizes wide each (three at page width, one in a column, two on a
-    slide), the rest in further rows, each row as tall as the size is (0.7 of that when
+    :data:`PANEL_EMS` font sizes wide each (:func:`panels_across`: three at page width, one
+    in a column, two on a slide), the rest in further rows, each row as tall as the size is (0.7 of that when
     there are several rows) and any empty slot of the last row removed.
 
     >>> fig, axes = panels("column", "light", 3)
@@ -201,7 +211,7 @@ def panels(size="column", theme="dark", count: int = 1, **subplots):
         raise ParameterError(f"size: must be one of {', '.join(SIZES)} or (width, height) (got {size!r})")
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
         raise ParameterError(f"count: must be a whole number >= 1 (got {count!r})")
-    across = max(1, min(count, int(width // (PANEL_EMS * size_pt / 72))))
+    across = min(count, panels_across(width, size_pt))
     rows = -(-count // across)
     across = -(-count // rows)  # as even as the rows allow: four panels as 2 x 2, not 3 + 1
     fig = new_figure(width, height if rows == 1 else 0.7 * height * rows, t, size_pt)
