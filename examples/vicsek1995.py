@@ -208,8 +208,7 @@ def parse(argv=None):
     p.add_argument("--size", default="page")
     args = p.parse_args(argv)
 
-    def numbers(name: str, kind, low: float, low_open: bool = False) -> list:
-        text = getattr(args, name.lstrip("-").replace("-", "_"))
+    def numbers(name: str, text: str, kind, low: float, low_open: bool = False) -> list:
         try:
             values = [kind(x) for x in text.split(",")]
         except ValueError:
@@ -218,9 +217,9 @@ def parse(argv=None):
             p.error(f"{name}: comma-separated numbers, each {'>' if low_open else '>='} {low:g} (got {text!r})")
         return values
 
-    args.sizes = numbers("--sizes", int, 1)
-    args.noises = numbers("--noises", float, 0.0)
-    args.densities = numbers("--densities", float, 0.0, low_open=True)
+    args.sizes = numbers("--sizes", args.sizes, int, 1)
+    args.noises = numbers("--noises", args.noises, float, 0.0)
+    args.densities = numbers("--densities", args.densities, float, 0.0, low_open=True)
     for name, value, low in (("--replicas", args.replicas, 2), ("--steps", args.steps, 1), ("--discard", args.discard, 0),
                              ("--bootstrap", args.bootstrap, 1), ("--threads", args.threads, 1)):
         if value < low:
