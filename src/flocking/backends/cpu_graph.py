@@ -23,7 +23,7 @@ from . import cells, cpu_kernels, delaunay, intrinsics, voronoi_cells
 from .features import Features
 
 # the flags and functions these read are bound per variant by kernel(), as in cpu_kernels
-EXT = CPL = CONE = WEIGHTED = False
+EXTENDED = COUPLING = WEIGHTED = False
 DIM = 2
 R = cpu_kernels.R
 
@@ -44,7 +44,7 @@ def voronoi_sums(i, pos, head, ids, box, tb, si, offsets, nbrs):
         if d == 3:
             dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
             d2 += dz * dz
-        s = R.plus(s, pair_terms(i, j, dx, dy, dz, d2, True, pos, head, ids, tb, si, CONE))
+        s = R.plus(s, pair_terms(i, j, dx, dy, dz, d2, True, pos, head, ids, tb, si))
     return s[:3] + (s[3] + 1.0,) + s[4:]
 
 
@@ -72,20 +72,20 @@ def graph_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, r
         px = 0.0
         py = 0.0
         pz = 0.0
-        if EXT:
+        if EXTENDED:
             acc[:] = 0.0
         for i in range(b * cells.BLOCK, min(n, (b + 1) * cells.BLOCK)):
-            si = species(ids[i], tb.bounds) if CPL else 0
+            si = species(ids[i], tb.bounds) if COUPLING else 0
             s = voronoi_sums(i, pos, head, ids, box, tb, si, offsets, nbrs)
             wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
                                  params, nc, inv, box, tb)
-            if EXT:
+            if EXTENDED:
                 add_moments(acc, wx, wy, wz, ids[i], tb.bounds)
             else:
                 px += wx
                 py += wy
                 pz += wz
-        if EXT:
+        if EXTENDED:
             partial[b, :] = acc
         else:
             partial[b, 0] = px
@@ -99,7 +99,6 @@ def build(features: Features, dim: int):
     kernel's variant: :func:`cpu_kernels.variant`), cached on disk under a name of its own."""
     features = cpu_kernels.variant(features, "search")
     namespace = dict(cpu_kernels.variant_namespace(features, dim))
-    namespace.update(R=R)
     namespace["voronoi_sums"] = numba.njit(inline="always")(rebind(voronoi_sums, namespace))
     namespace["graph_blocks"] = numba.njit(inline="always")(rebind(graph_blocks, namespace))
     tag = cpu_kernels.cache_tag(features, dim)

@@ -50,15 +50,18 @@ from ..rules import compile as compile_rules
 from ..rules import rebind
 from . import cells, intrinsics
 from .cells import ALL, U1
-from .features import Features
+from .features import NEUTRAL, Features
 
 R = compile_rules("cpu")
 U0 = np.uint64(0)
 
-# The flags of a variant: what it compiles in (Features) and its dimension. The functions
-# that read them are plain Python here; build() compiles a copy of them per variant with the
-# variant's values in place of these.
-EXT = CPL = NEM = CONE = COH = WEIGHTED = False
+# The flags of a variant: what it compiles in (Features, each field in capitals), its
+# dimension and its rules: R with its switches, LANES without cohesion (which the lines
+# kernel sums apart), RANKED without the cone (the k nearest are ranked among those in it).
+# The functions that read them are plain Python here; build() compiles a copy of them per
+# variant with the variant's values in place of these.
+LANES = RANKED = R
+EXTENDED = COUPLING = NEMATIC = CONE = COHESION = WEIGHTED = False
 DIM = 2
 
 
@@ -170,35 +173,36 @@ def note(near, k, row, v0, v1, v2, v3, w0, w1, w2, w3):
     return k + COUNT[intrinsics.mask4(w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)]
 
 
-# These read the flags (CPL, NEM, CONE, COH) as globals: compiled per variant by build() and
+# These read the flags (COUPLING, NEMATIC, CONE, COHESION) as globals: compiled per variant by build() and
 # inlined into its kernels, what a flag leaves out is never compiled.
 
 
-def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias):
-    """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour`, without
-    cohesion (see :func:`wreduce_2d`): it counts within ``R`` and ``j <= last``; the
-    coupling of the particle's species to the candidate's is buffer row ``jr``. Returns
-    the weighed heading (2), the count and the displacement (2)."""
+def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, pv):
+    """Candidate ``j`` of the buffer by :func:`flocking.rules.physics.neighbour` as the
+    lanes take it (``LANES``: without cohesion, see :func:`wreduce_2d`; ``pv`` the pair
+    terms' values): it counts within ``R`` and ``j <= last``; the coupling of the
+    particle's species to the candidate's is buffer row ``jr``. Returns the weighed
+    heading (2), the count and the displacement (2)."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     d2 = dx * dx + dy * dy
-    t = R.neighbour(2, dx, dy, 0.0, d2, (d2 < r2) & (j <= last), ux, uy, 0.0, buf[2, j], buf[3, j], 0.0,
-                    buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, False, 0.0, 0.0, 0.0, 0.0)
+    t = LANES.neighbour(2, dx, dy, 0.0, d2, (d2 < r2) & (j <= last), ux, uy, 0.0, buf[2, j], buf[3, j], 0.0,
+                        buf[jr, j] if COUPLING else 1.0, pv)
     return t[0], t[1], t[3], dx, dy
 
 
-def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias):
+def pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, pv):
     """:func:`pair_2d` in 3D: the weighed heading (3), the count, the displacement (3)."""
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
     dz = buf[2, j] - zi
     d2 = dx * dx + dy * dy + dz * dz
-    t = R.neighbour(3, dx, dy, dz, d2, (d2 < r2) & (j <= last), ux, uy, uz, buf[3, j], buf[4, j], buf[5, j],
-                    buf[jr, j] if CPL else 1.0, NEM, bias, CONE, cone, False, 0.0, 0.0, 0.0, 0.0)
+    t = LANES.neighbour(3, dx, dy, dz, d2, (d2 < r2) & (j <= last), ux, uy, uz, buf[3, j], buf[4, j], buf[5, j],
+                        buf[jr, j] if COUPLING else 1.0, pv)
     return t[0], t[1], t[2], t[3], dx, dy, dz
 
 
-def cohere(near, k, coh, sums, out, q):
+def cohere(near, k, pv, sums, out, q):
     """Cohesion of a particle: :func:`flocking.rules.physics.cohesion_term` of the ``k``
     displacements noted in ``near`` (a row per coordinate), summed in four lanes as the
     reductions sum (lane ``l`` takes terms ``l, l + 4, ...``), into rows ``DIM + 1`` on
@@ -208,7 +212,7 @@ def cohere(near, k, coh, sums, out, q):
     entry ``p`` plus term ``p``. An entry depends only on the one four before it, so LLVM
     vectorises the loop four terms at a time, square roots and divisions included,
     without reordering any addition; the last group's missing terms are zeros, weighed by
-    0 (``inside`` false)."""
+    0 (``inside`` false). ``pv``: the pair terms' values."""
     d = DIM
     u4 = np.uint64(4)
     for r in range(d):
@@ -216,12 +220,11 @@ def cohere(near, k, coh, sums, out, q):
     for r in range(2 * d + 1):
         sums[r, 0] = sums[r, 1] = sums[r, 2] = sums[r, 3] = 0.0
     k4 = (k + np.uint64(3)) & ~np.uint64(3)
-    rc2, re, ra, slope = coh[1], coh[2], coh[3], coh[4]
     for p in range(U0, k4):
         dx = near[0, p]
         dy = near[1, p]
         dz = near[2, p] if d == 3 else 0.0
-        t = R.cohesion_term(dx, dy, dz, dx * dx + dy * dy + dz * dz, p < k, rc2, re, ra, slope)
+        t = R.cohesion_term(dx, dy, dz, dx * dx + dy * dy + dz * dz, p < k, pv)
         sums[0, p + u4] = sums[0, p] + t[0]
         sums[1, p + u4] = sums[1, p] + t[1]
         sums[d, p + u4] = sums[d, p] + t[3]
@@ -243,7 +246,7 @@ def cohere(near, k, coh, sums, out, q):
 # reach, not for every candidate, and no more registers in the lanes.
 
 
-def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, near, sums, out, o):
+def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, pv, near, sums, out, o):
     """As :func:`reduce_2d` (the particle itself included, four lanes), each candidate
     weighed by :func:`pair_2d`; rows of ``out``: the heading sum (2), the count, and with
     cohesion (:func:`cohere`, ``near`` and ``sums`` its scratch) the pull (2), the push
@@ -253,7 +256,7 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, near
         yi = y[i]
         ux = hx[i]
         uy = hy[i]
-        jr = np.uint64(4 + int(tag[i])) if CPL else np.uint64(0)
+        jr = np.uint64(4 + int(tag[i])) if COUPLING else np.uint64(0)
         a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = n0 = n1 = n2 = n3 = 0.0
         k = U0
         for r in range(ranges.shape[0]):
@@ -261,25 +264,25 @@ def wreduce_2d(buf, ranges, x, y, hx, hy, tag, i0, i1, r2, cone, bias, coh, near
             m4 = hi - (hi - lo) % np.uint64(4)
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
-                p0, q0, w0, x0, y0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, cone, bias)
-                p1, q1, w1, x1, y1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, cone, bias)
-                p2, q2, w2, x2, y2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, cone, bias)
-                p3, q3, w3, x3, y3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, cone, bias)
+                p0, q0, w0, x0, y0 = pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, pv)
+                p1, q1, w1, x1, y1 = pair_2d(buf, j + U1, last, xi, yi, ux, uy, r2, jr, pv)
+                p2, q2, w2, x2, y2 = pair_2d(buf, j + np.uint64(2), last, xi, yi, ux, uy, r2, jr, pv)
+                p3, q3, w3, x3, y3 = pair_2d(buf, j + np.uint64(3), last, xi, yi, ux, uy, r2, jr, pv)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
-                if COH:
+                if COHESION:
                     note(near, k, 0, x0, x1, x2, x3, w0, w1, w2, w3)
                     k = note(near, k, 1, y0, y1, y2, y3, w0, w1, w2, w3)
         q = o + i - i0
         out[0, q] = (a0 + a1) + (a2 + a3)
         out[1, q] = (b0 + b1) + (b2 + b3)
         out[2, q] = (n0 + n1) + (n2 + n3)
-        if COH:
-            cohere(near, k, coh, sums, out, q)
+        if COHESION:
+            cohere(near, k, pv, sums, out, q)
 
 
-def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, coh, near, sums, out, o):
+def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, pv, near, sums, out, o):
     """:func:`wreduce_2d` in 3D; rows: heading sum (3), count, pull (3), push (3), core count."""
     for i in range(i0, i1):
         xi = x[i]
@@ -288,7 +291,7 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, co
         ux = hx[i]
         uy = hy[i]
         uz = hz[i]
-        jr = np.uint64(6 + int(tag[i])) if CPL else np.uint64(0)
+        jr = np.uint64(6 + int(tag[i])) if COUPLING else np.uint64(0)
         a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = c0 = c1 = c2 = c3 = n0 = n1 = n2 = n3 = 0.0
         k = U0
         for r in range(ranges.shape[0]):
@@ -297,15 +300,15 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, co
             for j in range(lo, hi, np.uint64(4)):
                 last = ALL if j < m4 else hi - U1
                 j1, j2, j3 = j + U1, j + np.uint64(2), j + np.uint64(3)
-                p0, q0, r0, w0, x0, y0, z0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
-                p1, q1, r1, w1, x1, y1, z1 = pair_3d(buf, j1, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
-                p2, q2, r2_, w2, x2, y2, z2 = pair_3d(buf, j2, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
-                p3, q3, r3, w3, x3, y3, z3 = pair_3d(buf, j3, last, xi, yi, zi, ux, uy, uz, r2, jr, cone, bias)
+                p0, q0, r0, w0, x0, y0, z0 = pair_3d(buf, j, last, xi, yi, zi, ux, uy, uz, r2, jr, pv)
+                p1, q1, r1, w1, x1, y1, z1 = pair_3d(buf, j1, last, xi, yi, zi, ux, uy, uz, r2, jr, pv)
+                p2, q2, r2_, w2, x2, y2, z2 = pair_3d(buf, j2, last, xi, yi, zi, ux, uy, uz, r2, jr, pv)
+                p3, q3, r3, w3, x3, y3, z3 = pair_3d(buf, j3, last, xi, yi, zi, ux, uy, uz, r2, jr, pv)
                 a0, a1, a2, a3 = a0 + p0, a1 + p1, a2 + p2, a3 + p3
                 b0, b1, b2, b3 = b0 + q0, b1 + q1, b2 + q2, b3 + q3
                 c0, c1, c2, c3 = c0 + r0, c1 + r1, c2 + r2_, c3 + r3
                 n0, n1, n2, n3 = n0 + w0, n1 + w1, n2 + w2, n3 + w3
-                if COH:
+                if COHESION:
                     note(near, k, 0, x0, x1, x2, x3, w0, w1, w2, w3)
                     note(near, k, 1, y0, y1, y2, y3, w0, w1, w2, w3)
                     k = note(near, k, 2, z0, z1, z2, z3, w0, w1, w2, w3)
@@ -314,8 +317,8 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, cone, bias, co
         out[1, q] = (b0 + b1) + (b2 + b3)
         out[2, q] = (c0 + c1) + (c2 + c3)
         out[3, q] = (n0 + n1) + (n2 + n3)
-        if COH:
-            cohere(near, k, coh, sums, out, q)
+        if COHESION:
+            cohere(near, k, pv, sums, out, q)
 
 
 @numba.njit(cache=True, inline="always")
@@ -328,16 +331,20 @@ def species(pid, bounds):
 # -- the sums of the search kernel --------------------------------------------------------
 
 
-def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si, cone):
+def pair_terms(i, j, dx, dy, dz, d2, inside, pos, head, ids, tb, si):
     """Neighbour candidate ``j`` of slot ``i`` at ``r = (dx, dy, dz)`` by
     :func:`flocking.rules.physics.neighbour` (``si``: the species of ``i``; ``d``: the
-    dimension, a constant of the kernel)."""
+    dimension, a constant of the kernel). Compiled twice per variant: with the variant's
+    rules (``R``), and as ``ranked_terms`` with the cone left out (``RANKED``) for the k
+    nearest, which are ranked among those in the cone."""
     d = DIM
-    coh = tb.cohesion
-    coupling = tb.coupling[si, species(ids[j], tb.bounds)] if CPL else 1.0
+    coupling = tb.coupling[si, species(ids[j], tb.bounds)] if COUPLING else 1.0
     return R.neighbour(d, dx, dy, dz, d2, inside, head[0, i], head[1, i], head[2, i] if d == 3 else 0.0, head[0, j],
-                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, NEM, tb.bias[0], cone, tb.cone[0], COH,
-                       coh[1], coh[2], coh[3], coh[4])
+                       head[1, j], head[2, j] if d == 3 else 0.0, coupling, R.pair_values(tb.pair))
+
+
+#: :func:`pair_terms` with the cone left out, for the k nearest: compiled per variant with ``RANKED``
+ranked_terms = pair_terms
 
 
 def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
@@ -355,17 +362,17 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
     for k2 in range(n2):
         g2 = o2 + k2
         if d == 3:
-            if EXT and tb.walls[2] != 0 and (g2 < 0 or g2 >= nc[2]):
+            if EXTENDED and tb.walls[2] != 0 and (g2 < 0 or g2 >= nc[2]):
                 continue
             g2 %= nc[2]
         for k1 in range(n1):
             g1 = o1 + k1
-            if EXT and tb.walls[1] != 0 and (g1 < 0 or g1 >= nc[1]):
+            if EXTENDED and tb.walls[1] != 0 and (g1 < 0 or g1 >= nc[1]):
                 continue
             g1 %= nc[1]
             for k0 in range(n0):
                 g0 = o0 + k0
-                if EXT and tb.walls[0] != 0 and (g0 < 0 or g0 >= nc[0]):
+                if EXTENDED and tb.walls[0] != 0 and (g0 < 0 or g0 >= nc[0]):
                     continue
                 g0 %= nc[0]
                 cell = R.cell_number(g0, g1, g2, nc[0], nc[1])
@@ -379,7 +386,7 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
                     if d == 3:
                         dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
                         d2 += dz * dz
-                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si, CONE)
+                    t = pair_terms(i, j, dx, dy, dz, d2, d2 < r2, pos, head, ids, tb, si)
                     if t[3] != 0.0:  # only what counts is added, as the reference adds it
                         s = R.plus(s, t)
     if WEIGHTED:  # the count includes the particle itself
@@ -396,19 +403,19 @@ def nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs):
     h2 = tb.half[2] if d == 3 else np.inf
     c0, c1, c2 = R.cell_coords(c, nc[0], nc[1])
     found = R.knearest(i, c0, c1, c2, 0, pos, head, ids, start, nc[0], nc[1], nc2, box[0], box[1], l2, tb.half[0],
-                       tb.half[1], h2, d, k, CONE, tb.cone[0], bd, bi, bs)
+                       tb.half[1], h2, d, k, CONE, R.cone_of(R.pair_values(tb.pair)), bd, bi, bs)
     s = R.SUM0
     if not WEIGHTED:
         s = (head[0, i], head[1, i], head[2, i] if d == 3 else 0.0) + R.SUM0[3:]
     for q in range(found):
         j = bs[q]
         dx = dy = dz = 0.0
-        if COH:
+        if COHESION:
             dx = R.minimum_image(pos[0, j] - pos[0, i], box[0], tb.half[0])
             dy = R.minimum_image(pos[1, j] - pos[1, i], box[1], tb.half[1])
             if d == 3:
                 dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
-        s = R.plus(s, pair_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si, False))
+        s = R.plus(s, ranked_terms(i, j, dx, dy, dz, bd[q], True, pos, head, ids, tb, si))
     return s[:3] + (float(found + 1),) + s[4:]
 
 
@@ -432,12 +439,12 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
         intrinsics.prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
         if not WEIGHTED:  # the ring holds the others' sum
             s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0) + s[3:]
-        past = R.recall(ring, slot, pid, d, COH)
-        R.keep(ring, slot, pid, s, d, COH)
+        past = R.recall(ring, slot, pid, d, COHESION)
+        R.keep(ring, slot, pid, s, d, COHESION)
         s = (ux + past[0], uy + past[1], uz + past[2] if d == 3 else 0.0) + past[3:]
     elif WEIGHTED:
         s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0) + s[3:]
-    if EXT:
+    if EXTENDED:
         si = species(pid, tb.bounds)
         eta, epsilon, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 4]
         cturn, sturn = tb.species[si, 2], tb.species[si, 3]
@@ -448,7 +455,7 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
     # call's arguments is control flow that numba cannot inline
     if d == 3:
         z, l2, h2, w2 = pos[2, i], box[2], tb.half[2], tb.walls[2] != 0
-    x, y, z, wx, wy, wz = R.finish(d, EXT, COH, ux, uy, uz, s, tb.cohesion[0], (eta, epsilon, h, cturn, sturn),
+    x, y, z, wx, wy, wz = R.finish(d, EXTENDED, COHESION, ux, uy, uz, s, tb.beta[0], (eta, epsilon, h, cturn, sturn),
                                    p.vectorial, p.backward, seed, step, pid, (tb.field[0], tb.field[1], tb.field[2]),
                                    ds, pos[0, i], pos[1, i], z, (box[0], box[1], l2), (tb.half[0], tb.half[1], h2),
                                    (tb.walls[0] != 0, tb.walls[1] != 0, w2), tb.obstacles, tb.obstacles.shape[0])
@@ -471,7 +478,7 @@ def add_moments(acc, wx, wy, wz, pid, bounds):
     if d == 3:
         acc[o + 2] += wz
     o = (bounds.shape[0] - 1) * d
-    if NEM and acc.shape[0] > o:  # a variant with nematic alignment runs models without it
+    if NEMATIC and acc.shape[0] > o:  # a variant with nematic alignment runs models without it
         if d == 2:
             a, b = R.nematic_2d(wx, wy)
             acc[o] += a
@@ -491,9 +498,9 @@ def lines(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, sl
     nt = max(1, min(threads, cells.work_units(nc, n, 0)))
     # per slot its species and its coupling from each species: a unit's buffer holds the
     # latter as rows, so a weighed sum reads one row instead of a look-up per pair
-    tag = np.empty(n if CPL else 0)
-    cols = np.empty((tb.coupling.shape[0] if CPL else 0, n))
-    if CPL:
+    tag = np.empty(n if COUPLING else 0)
+    cols = np.empty((tb.coupling.shape[0] if COUPLING else 0, n))
+    if COUPLING:
         for i in numba.prange(n):
             s = species(ids[i], tb.bounds)
             tag[i] = s
@@ -514,8 +521,9 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     d = DIM
     n = pos.shape[1]
     r2 = params.r2
+    pv = R.pair_values(tb.pair)  # in registers: read once, not per pair
     inv = nc / box
-    shifts = box * (1.0 + tb.walls) if EXT else box  # 2L across a wall: a wrapped copy is never within R
+    shifts = box * (1.0 + tb.walls) if EXTENDED else box  # 2L across a wall: a wrapped copy is never within R
     nx = nc[0]
     nseg = (nx + cells.SEGMENT - 1) // cells.SEGMENT
     nunits = cells.work_units(nc, n, 0)
@@ -525,8 +533,8 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     buf = np.empty((2 * d + cols.shape[0], 4096))
     rows = np.empty((3 if d == 2 else 9, 4), dtype=np.int64)
     ranges = np.empty((3 if d == 2 else 9, 2), dtype=np.int64)
-    out = np.empty((4 if not COH else 12, 16))  # rows of the per-slot sums
-    near = np.empty((d, buf.shape[1] + 4 if COH else 0))  # wreduce_*'s scratch: noted displacements
+    out = np.empty((4 if not COHESION else 12, 16))  # rows of the per-slot sums
+    near = np.empty((d, buf.shape[1] + 4 if COHESION else 0))  # wreduce_*'s scratch: noted displacements
     sums = np.empty((2 * d + 1, near.shape[1] + 4))  # and cohesion's running sums
     acc = np.zeros(partial.shape[1])
     while True:
@@ -535,13 +543,13 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
         u = intrinsics.fetch_add(counter)
         if u >= nunits:
             break
-        if CPL:
+        if COUPLING:
             line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, cols, start, nc,
                                                                shifts, buf, rows, out, d)
         else:
             line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
                                                                shifts, buf, rows, out, d)
-        if COH and near.shape[1] < buf.shape[1] + 4:
+        if COHESION and near.shape[1] < buf.shape[1] + 4:
             near = np.empty((d, buf.shape[1] + 4))
             sums = np.empty((2 * d + 1, near.shape[1] + 4))
         # first the sums of every particle of the segment, then the updates in one
@@ -555,39 +563,39 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
             elif not WEIGHTED:
                 reduce_3d(buf, ranges, x, y, z, start[c], start[c + 1], r2, out, start[c] - s0)
             elif d == 2:
-                wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, tb.cone[0],
-                           tb.bias[0], tb.cohesion, near, sums, out, start[c] - s0)
+                wreduce_2d(buf, ranges, x, y, hx, hy, tag, start[c], start[c + 1], r2, pv, near, sums, out,
+                           start[c] - s0)
             else:
-                wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, tb.cone[0],
-                           tb.bias[0], tb.cohesion, near, sums, out, start[c] - s0)
+                wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, start[c], start[c + 1], r2, pv, near, sums,
+                           out, start[c] - s0)
         px = 0.0
         py = 0.0
         pz = 0.0
-        if EXT:
+        if EXTENDED:
             acc[:] = 0.0
         # unsigned slots: no negative-index wraparound on every access
         for i in range(np.uint64(max(s0, 0)), np.uint64(max(s1, 0))):
             q = np.int64(i) - s0
             sz = out[2, q] if d == 3 else 0.0
             s = (out[0, q], out[1, q], sz, out[d, q]) + R.SUM0[4:]
-            if COH:
+            if COHESION:
                 o = d + 1
                 s = s[:4] + (out[o, q], out[o + 1, q], out[o + 2, q] if d == 3 else 0.0, out[o + d, q],
                              out[o + d + 1, q], out[o + d + 2, q] if d == 3 else 0.0, out[o + 2 * d, q])
             if WEIGHTED:
                 # the sums include the particle itself, with its own species'
                 # coupling, in its cone, of its own sense: take it out
-                w = tb.coupling[int(tag[i]), int(tag[i])] if CPL else 1.0
+                w = tb.coupling[int(tag[i]), int(tag[i])] if COUPLING else 1.0
                 s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0) + s[3:]
             wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
                                  params, nc, inv, box, tb)
-            if EXT:
+            if EXTENDED:
                 add_moments(acc, wx, wy, wz, ids[i], tb.bounds)
             else:
                 px += wx
                 py += wy
                 pz += wz
-        if EXT:
+        if EXTENDED:
             partial[u, :] = acc
         else:
             partial[u, 0] = px
@@ -628,25 +636,25 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
         px = 0.0
         py = 0.0
         pz = 0.0
-        if EXT:
+        if EXTENDED:
             acc[:] = 0.0
         while c < ncells and start[c] < s1:
             for i in range(max(start[c], s0), min(start[c + 1], s1)):
-                si = species(ids[i], tb.bounds) if CPL else 0
+                si = species(ids[i], tb.bounds) if COUPLING else 0
                 if k == 0:
                     s = metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si)
                 else:
                     s = nearest_sums(i, c, pos, head, ids, start, nc, box, k, tb, si, bd, bi, bs)
                 wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
                                      params, nc, inv, box, tb)
-                if EXT:
+                if EXTENDED:
                     add_moments(acc, wx, wy, wz, ids[i], tb.bounds)
                 else:
                     px += wx
                     py += wy
                     pz += wz
             c += 1
-        if EXT:
+        if EXTENDED:
             partial[b, :] = acc
         else:
             partial[b, 0] = px
@@ -679,10 +687,9 @@ def variant(features: Features, kernel: str) -> Features:
     >>> variant(Features(extended=True, cohesion=True), "search") == Features(extended=True, cohesion=True)
     True
     """
-    group = ("coupling", "nematic", "cone")
-    if kernel == "lines" or not any(getattr(features, weight) for weight in group):
+    if kernel == "lines" or not any(getattr(features, weight) for weight in NEUTRAL):
         return features
-    return features._replace(**{weight: True for weight in group})
+    return features._replace(**{weight: True for weight in NEUTRAL})
 
 
 def cache_tag(features: Features, dim: int) -> str:
@@ -724,9 +731,12 @@ def variant_namespace(features: Features, dim: int) -> dict:
     """The globals :func:`build` compiles a variant's kernels with: its flags, and the
     functions of :data:`VARIANT` compiled with them (another kernel that reuses them,
     :mod:`flocking.backends.cpu_graph`, is compiled with the same)."""
-    flags = dict(EXT=features.extended, CPL=features.coupling, NEM=features.nematic, CONE=features.cone,
-                 COH=features.cohesion, WEIGHTED=features.weighted, DIM=dim)
-    namespace = {**globals(), **flags}
+    namespace = {**globals(), **features.flags(), "WEIGHTED": features.weighted, "DIM": dim,
+                 "R": compile_rules("cpu", switches=features),
+                 "LANES": compile_rules("cpu", switches=features._replace(cohesion=False)),
+                 "RANKED": compile_rules("cpu", switches=features._replace(cone=False))}
+    ranked = {**namespace, "R": namespace["RANKED"]}
+    namespace["ranked_terms"] = numba.njit(inline="always")(rebind(pair_terms, ranked, "ranked_terms"))
     for name in VARIANT:
         namespace[name] = numba.njit(inline="always")(rebind(globals()[name], namespace))
     return namespace

@@ -566,14 +566,14 @@ def device_tables(models: Sequence[Model], real) -> tuple[np.ndarray, ...]:
     converted to ``real``: the species' values per replica ``(R, S, 5)``, then the first
     model's bounds (int32, as the ids: held in registers for the species look-up of every
     neighbour, 64-bit bounds cost the extended steps up to 12 more registers), coupling,
-    field, cone, cohesion and obstacles (an unused row when there are none). The plain
+    field, beta, pair and obstacles (an unused row when there are none). The plain
     model's kernels take them and read none."""
     each = [tables(x) for x in models]
     first = each[0]
     obstacles = first.obstacles if len(first.obstacles) else np.zeros((1, models[0].dim + 1))
     species = np.stack([tb.species for tb in each]).astype(real)
     return (species, first.bounds.astype(np.int32), first.coupling.astype(real), first.field.astype(real),
-            first.cone.astype(real), first.cohesion.astype(real), obstacles.astype(real))
+            first.beta.astype(real), first.pair.astype(real), obstacles.astype(real))
 
 
 def check_supported(models: Sequence[Model]) -> None:

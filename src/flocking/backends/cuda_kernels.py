@@ -1,10 +1,10 @@
 """CUDA kernels of the GPU backend (numba.cuda), for one system or an ensemble of them.
 
 The physics is :mod:`flocking.rules`, compiled as CUDA device functions for the run's
-float type (``R = compile_rules("cuda", real)``): the same text as the CPU kernels', so in
-float64 a GPU step matches a CPU or reference step to rounding. Every constant is a
-``real``, so float32 kernels never silently promote to float64; only the moment sums are
-accumulated in float64. The kernels here are thin loops around those rules.
+float type and the build's features (``R = compile_rules("cuda", real, features)``): the
+same text as the CPU kernels', so in float64 a GPU step matches a CPU or reference step to
+rounding. Every constant is a ``real``, so float32 kernels never silently promote to
+float64; only the moment sums are accumulated in float64. The kernels here are thin loops around those rules.
 
 Layout. ``R`` replicas of ``N`` particles each (``R = 1`` for one system) share every
 array: replica ``r`` owns the slots ``[r N, (r + 1) N)``, kept in the order (cell, id),
@@ -72,15 +72,15 @@ class Particles(typing.NamedTuple):
 class DeviceTables(typing.NamedTuple):
     """:class:`flocking.backends.features.Tables` on the device, in the run's float type,
     for every replica: ``species`` ``(R, S, 5)``; ``bounds`` (int32, as the ids),
-    ``coupling``, ``field``, ``cone``, ``cohesion`` as there; ``obstacles``
+    ``coupling``, ``field``, ``beta``, ``pair`` as there; ``obstacles``
     ``(max(M, 1), d + 1)`` (an unused row when there are none)."""
 
     species: typing.Any
     bounds: typing.Any
     coupling: typing.Any
     field: typing.Any
-    cone: typing.Any
-    cohesion: typing.Any
+    beta: typing.Any
+    pair: typing.Any
     obstacles: typing.Any
 
 
@@ -106,9 +106,10 @@ def replica_dtype(real) -> np.dtype:
 
 # The values of a build: the functions below read them as globals, and build() compiles
 # each with its own values in place of these (the float type's constants, the flags of
-# Features and the delay's, the dimension, k, the moment width, the launch shape).
+# Features, each field in capitals, and the delay's, the dimension, k, the moment width,
+# the launch shape; the rules with the build's switches, R).
 R = None
-EXT = CPL = NEM = CONE = COH = DELAY = False
+EXTENDED = COUPLING = NEMATIC = CONE = COHESION = DELAY = False
 DIM, K, KA, NSPECIES, WIDTH, BLOCK, HSIZE, PMAX = 2, 0, 1, 1, 2, 256, 1, 1
 REAL, ZERO, ONE = np.float64, 0.0, 1.0
 
@@ -138,14 +139,21 @@ def row_of(c, oc, nc, length):
         return g - nc, -length
     return g, ZERO
 
-def terms(i, j, dx, dy, dz, d2, inside, cur, tb, si, with_cone):
-    """Neighbour candidate ``j`` of slot ``i`` by :func:`flocking.rules.physics.neighbour`."""
-    head, coh = cur.head, tb.cohesion
-    coupling = tb.coupling[si, R.species_of(cur.ids[j], tb.bounds, NSPECIES)] if CPL else ONE
+def terms(i, j, dx, dy, dz, d2, inside, cur, tb, si):
+    """Neighbour candidate ``j`` of slot ``i`` by :func:`flocking.rules.physics.neighbour`.
+    Compiled twice per build: with the build's rules (``R``), and as ``ranked_terms`` with
+    the cone left out (``RANKED``) for the k nearest, which are ranked among those in the
+    cone."""
+    head = cur.head
+    coupling = tb.coupling[si, R.species_of(cur.ids[j], tb.bounds, NSPECIES)] if COUPLING else ONE
     uz = head[2, i] if DIM == 3 else ZERO
     vz = head[2, j] if DIM == 3 else ZERO
     return R.neighbour(DIM, dx, dy, dz, d2, inside, head[0, i], head[1, i], uz, head[0, j], head[1, j], vz,
-                       coupling, NEM, ZERO, with_cone, tb.cone[0], COH, coh[1], coh[2], coh[3], coh[4])
+                       coupling, R.pair_values(tb.pair))
+
+
+#: :func:`terms` with the cone left out, for the k nearest: compiled per build without it
+ranked_terms = terms
 
 def metric(i, cb, cur, start, p, tb, si):
     """The others within R of slot ``i`` (``cb``: the replica's first cell): weighed
@@ -191,7 +199,7 @@ def metric(i, cb, cur, start, p, tb, si):
                         else:
                             dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2)
                         d2 += dz * dz
-                    t = terms(i, j, dx, dy, dz, d2, d2 < r2, cur, tb, si, CONE)
+                    t = terms(i, j, dx, dy, dz, d2, d2 < r2, cur, tb, si)
                     if t[3] != ZERO:
                         s = R.plus(s, t)
     return s
@@ -204,7 +212,7 @@ def nearest(i, cb, cur, start, p, tb, si, bd, bi, bs):
     c0, c1 = R.cell_index(xi, p.inv0, p.nc0), R.cell_index(yi, p.inv1, p.nc1)
     c2 = R.cell_index(zi, p.inv2, p.nc2) if DIM == 3 else 0
     found = R.knearest(i, c0, c1, c2, cb, pos, cur.head, cur.ids, start, p.nc0, p.nc1, p.nc2, p.l0, p.l1, p.l2,
-                       p.h0, p.h1, p.h2, DIM, K, CONE, tb.cone[0], bd, bi, bs)
+                       p.h0, p.h1, p.h2, DIM, K, CONE, R.cone_of(R.pair_values(tb.pair)), bd, bi, bs)
     s = R.SUM0
     for q in range(K):
         if q < found:
@@ -212,7 +220,7 @@ def nearest(i, cb, cur, start, p, tb, si, bd, bi, bs):
             dx = R.minimum_image(pos[0, j] - xi, p.l0, p.h0)
             dy = R.minimum_image(pos[1, j] - yi, p.l1, p.h1)
             dz = R.minimum_image(pos[2, j] - zi, p.l2, p.h2) if DIM == 3 else ZERO
-            s = R.plus(s, terms(i, j, dx, dy, dz, bd[q], True, cur, tb, si, False))
+            s = R.plus(s, ranked_terms(i, j, dx, dy, dz, bd[q], True, cur, tb, si))
     return s
 
 # -- one step --------------------------------------------------------------------
@@ -258,8 +266,8 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
             # read before the neighbour search, whose work hides the latency of these
             # reads (scattered by id over the ring's slab): read after it, they made a
             # delayed step 2.8 times slower (docs/gpu.md)
-            past = R.recall(ring, slot, gid, DIM, COH)
-    si = R.species_of(pid, tb.bounds, NSPECIES) if EXT else 0
+            past = R.recall(ring, slot, gid, DIM, COHESION)
+    si = R.species_of(pid, tb.bounds, NSPECIES) if EXTENDED else 0
     if K == 0:
         s = metric(i, cb, cur, start, p, tb, si)
     else:
@@ -277,10 +285,10 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
     else:
         if prime:
             for q in range(tau):
-                R.keep(ring, q, gid, s, DIM, COH)
+                R.keep(ring, q, gid, s, DIM, COHESION)
             return
         if tau > 0:
-            R.keep(ring, slot, gid, s, DIM, COH)
+            R.keep(ring, slot, gid, s, DIM, COHESION)
             s = past  # without cohesion its last seven are zeros that move() never reads
     move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t)
 
@@ -291,7 +299,7 @@ def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
     ux, uy = head[0, i], head[1, i]
     uz = head[2, i] if DIM == 3 else ZERO
     s = (ux + s[0], uy + s[1], uz + s[2]) + s[3:]
-    if EXT:
+    if EXTENDED:
         eta, epsilon = tb.species[r, si, 0], tb.species[r, si, 1]
         cturn, sturn, h = tb.species[r, si, 2], tb.species[r, si, 3], tb.species[r, si, 4]
     else:
@@ -302,7 +310,7 @@ def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
     else:
         ds = rp[r].v0 * p.dt
     z = pos[2, i] if DIM == 3 else ZERO
-    x, y, z, wx, wy, wz = R.finish(DIM, EXT, COH, ux, uy, uz, s, tb.cohesion[0], (eta, epsilon, h, cturn, sturn),
+    x, y, z, wx, wy, wz = R.finish(DIM, EXTENDED, COHESION, ux, uy, uz, s, tb.beta[0], (eta, epsilon, h, cturn, sturn),
                                    p.vectorial != 0, p.backward != 0, rp[r].seed, np.uint64(t), np.uint64(pid),
                                    (tb.field[0], tb.field[1], tb.field[2]), ds, pos[0, i], pos[1, i], z,
                                    (p.l0, p.l1, p.l2), (p.h0, p.h1, p.h2), (p.w0 != 0, p.w1 != 0, p.w2 != 0),
@@ -359,7 +367,7 @@ def gather(srt, new, P, cur, start, partial, bounds):
             cur.pos[a, s] = new.pos[a, o]
             cur.head[a, s] = new.head[a, o]
             buf[row + a, tid] = np.float64(new.head[a, o])
-        if NEM:
+        if NEMATIC:
             wx, wy = np.float64(new.head[0, o]), np.float64(new.head[1, o])
             row = NSPECIES * DIM
             if DIM == 2:
@@ -433,17 +441,18 @@ def build(precision: str, dim: int, k: int, launch: Launch, features: Features =
     these values as their globals (as :func:`flocking.rules.compile` binds the rules'
     constants), so what ``features`` leaves off is not compiled."""
     real = np.float64 if precision == "float64" else np.float32
-    R = compile_rules("cuda", real)
-    EXT, CPL, NEM, CONE, COH = features
+    R = compile_rules("cuda", real, features)
     DIM, K, KA, NSPECIES, DELAY = dim, k, max(k, 1), species, delay
-    WIDTH = sums_width(dim, species, NEM)
+    WIDTH = sums_width(dim, species, features.nematic)
     BLOCK = launch.block
     sort = cuda_sort.build(launch)
     HSIZE, PMAX = sort.hist_size, sort.max_passes
     ZERO, ONE = real(0.0), real(1.0)
-    namespace = {**globals(), "R": R, "EXT": EXT, "CPL": CPL, "NEM": NEM, "CONE": CONE, "COH": COH, "DIM": DIM,
+    namespace = {**globals(), **features.flags(), "R": R, "DIM": DIM,
                  "K": K, "KA": KA, "NSPECIES": NSPECIES, "DELAY": DELAY, "WIDTH": WIDTH, "BLOCK": BLOCK,
                  "HSIZE": HSIZE, "PMAX": PMAX, "REAL": real, "ZERO": ZERO, "ONE": ONE}
+    ranked = {**namespace, "R": compile_rules("cuda", real, features._replace(cone=False))}
+    namespace["ranked_terms"] = cuda.jit(device=True)(rebind(terms, ranked, "ranked_terms"))
     for name in DEVICE:
         namespace[name] = cuda.jit(device=True)(rebind(globals()[name], namespace))
     for name in KERNELS:

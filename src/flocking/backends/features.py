@@ -13,8 +13,8 @@ named arrays.
 True
 >>> features(Model(n=10, box=5.0, vision=2.0, chirality=0.1))
 Features(extended=True, coupling=False, nematic=False, cone=True, cohesion=False)
->>> tables(Model(n=10, box=5.0, vision=2.0)).cone.round(6).tolist()  # cos(2) |cos(2)|
-[-0.173178]
+>>> dict(zip(PAIR, tables(Model(n=10, box=5.0, vision=2.0)).pair.round(6).tolist()))  # cone: cos(2) |cos(2)|
+{'bias': 4.0, 'cone': -0.173178, 'rc2': 0.0, 're': 0.0, 'ra': 0.0, 'slope': 0.0}
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import typing
 import numpy as np
 
 from ..model import Model
+from ..rules.physics import PAIR
 from ..space import Space
 
 
@@ -32,7 +33,9 @@ class Features(typing.NamedTuple):
     """What the kernels compile in. ``extended``: any extension at all (walls, obstacles,
     per-species values, chirality, a field are then read from :class:`Tables`); the rest
     weigh or add to each neighbour pair: a ``coupling`` matrix, ``nematic`` alignment, a
-    vision ``cone``, ``cohesion``."""
+    vision ``cone``, ``cohesion``. The kernels and the rules
+    (:func:`flocking.rules.compile`) read each as a constant named in capitals
+    (:meth:`flags`)."""
 
     extended: bool = False
     coupling: bool = False
@@ -42,8 +45,23 @@ class Features(typing.NamedTuple):
 
     @property
     def weighted(self) -> bool:
-        """Whether a neighbour pair is weighed or adds more than its heading."""
-        return self.coupling or self.nematic or self.cone or self.cohesion
+        """Whether a neighbour pair is weighed or adds more than its heading: any feature
+        but ``extended``."""
+        return any(self[1:])
+
+    def flags(self) -> dict[str, bool]:
+        """Each feature as the constant a kernel is compiled with: its name in capitals.
+
+        >>> Features(cone=True).flags()["CONE"]
+        True
+        """
+        return {name.upper(): bool(on) for name, on in self._asdict().items()}
+
+
+#: the pair weights that a value of :class:`Tables` makes exactly neutral (a coupling of 1,
+#: the cone -4, a nematic ``bias`` of 4): a kernel may compile them in together for a model
+#: that has only some of them (:func:`flocking.backends.cpu_kernels.variant`)
+NEUTRAL = ("coupling", "nematic", "cone")
 
 
 def ring_width(dim: int, features: Features) -> int:
@@ -77,13 +95,15 @@ class Tables(typing.NamedTuple):
       of the turn ``omega dt`` (1 and 0 without chirality), and the field strength;
     - ``coupling`` (S, S): the weight of species ``b`` in the sum of species ``a``;
     - ``field`` (3): the field's unit direction (zeros without one);
-    - ``cone`` (1): ``cos |cos|`` of the vision half-angle (-4 without a cone: every
-      neighbour is seen, see :func:`flocking.rules.physics.sees`);
-    - ``cohesion`` (5): the strength ``beta``, ``r_c^2``, ``r_e``, ``r_a`` and the slope
-      ``1 / (4 (r_a - r_e))`` of the attraction-repulsion (zeros without cohesion);
-    - ``bias`` (1): added to ``u . v`` before nematic alignment takes its sign: 0 with
-      nematic alignment, 4 without (no sign flips; see
-      :func:`flocking.rules.physics.neighbour`).
+    - ``beta`` (1): the strength of cohesion (0 without);
+    - ``pair``: the values of the pair terms, named by
+      :data:`flocking.rules.physics.PAIR`: ``bias``, added to ``u . v`` before nematic
+      alignment takes its sign (0 with nematic alignment, 4 without: no sign flips; see
+      :func:`flocking.rules.physics.neighbour`); ``cone``, ``cos |cos|`` of the vision
+      half-angle (-4 without a cone: every neighbour is seen, see
+      :func:`flocking.rules.physics.sees`); ``rc2`` (``r_c^2``), ``re``, ``ra`` and the
+      ``slope`` ``1 / (4 (r_a - r_e))`` of cohesion's attraction-repulsion (zeros without
+      cohesion).
     """
 
     walls: np.ndarray
@@ -93,9 +113,8 @@ class Tables(typing.NamedTuple):
     species: np.ndarray
     coupling: np.ndarray
     field: np.ndarray
-    cone: np.ndarray
-    cohesion: np.ndarray
-    bias: np.ndarray
+    beta: np.ndarray
+    pair: np.ndarray
 
 
 def tables(model: Model) -> Tables:
@@ -112,15 +131,15 @@ def tables(model: Model) -> Tables:
     if model.field is not None:
         field[:d] = model.field_direction
     cos_v = math.cos(model.vision)
-    cone = np.array([cos_v * abs(cos_v) if model.vision < math.pi else -4.0])
-    cohesion = np.zeros(5)
+    pair = dict(bias=0.0 if model.alignment_rule == "nematic" else 4.0,
+                cone=cos_v * abs(cos_v) if model.vision < math.pi else -4.0, rc2=0.0, re=0.0, ra=0.0, slope=0.0)
     if model.cohesion:
         rc, re, ra = model.cohesion_radii
-        cohesion[:] = model.cohesion, rc * rc, re, ra, 1.0 / (4.0 * (ra - re))
+        pair.update(rc2=rc * rc, re=re, ra=ra, slope=1.0 / (4.0 * (ra - re)))
     return Tables(walls=walls, half=Space.of(model).half, obstacles=obstacles,
                   bounds=np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64),
-                  species=species, coupling=coupling, field=field, cone=cone, cohesion=cohesion,
-                  bias=np.array([0.0 if model.alignment_rule == "nematic" else 4.0]))
+                  species=species, coupling=coupling, field=field, beta=np.array([float(model.cohesion)]),
+                  pair=np.array([pair[name] for name in PAIR]))
 
 
 class Step(typing.NamedTuple):

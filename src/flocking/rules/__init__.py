@@ -63,9 +63,19 @@ def rebind(function, namespace: dict, qualname: str | None = None):
 
 
 @functools.lru_cache(maxsize=None)
-def compile(target: str = "cpu", real=np.float64) -> types.ModuleType:  # noqa: A001 - the verb is the point
+def compile(target: str = "cpu", real=np.float64, switches=None) -> types.ModuleType:  # noqa: A001 - the verb is the point
     """Every rule compiled for ``target`` (``"cpu"`` or ``"cuda"``) with floats of type
-    ``real``, as the attributes of a module ``flocking.rules.<target>``."""
+    ``real``, as the attributes of a module ``flocking.rules.<target>``. ``switches``, a
+    named tuple of booleans (a kernel's :class:`~flocking.backends.features.Features`),
+    binds each of its fields, in capitals, as a constant of the rules (``CONE``,
+    ``NEMATIC``, ...: the pair terms compiled in); without it every switch is off.
+
+    >>> import typing
+    >>> class On(typing.NamedTuple):
+    ...     cone: bool = False
+    >>> compile("cpu", switches=On(cone=True)).CONE
+    True
+    """
     if target == "cpu":
         jit = numba.njit(inline="always", fastmath=False, error_model="numpy")
     elif target == "cuda":
@@ -76,6 +86,8 @@ def compile(target: str = "cpu", real=np.float64) -> types.ModuleType:  # noqa: 
         raise ValueError(f"rules.compile: target must be 'cpu' or 'cuda' (got {target!r})")
     built: dict[str, object] = {}
     bound = constants(real)
+    if switches is not None:
+        bound.update({name.upper(): bool(on) for name, on in switches._asdict().items()})
     for module in MODULES:
         namespace = dict(vars(module))
         # a warning adds a registry to its globals: made beforehand, because numba's CUDA
@@ -85,7 +97,8 @@ def compile(target: str = "cpu", real=np.float64) -> types.ModuleType:  # noqa: 
         namespace.update(built)
         for name in module.RULES:
             built[name] = namespace[name] = jit(rebind(getattr(module, name), namespace))
-    out = types.ModuleType(f"{__name__}.{target}_{np.dtype(real).name}")
+    tag = "".join("1" if on else "0" for on in switches) if switches is not None else ""
+    out = types.ModuleType(f"{__name__}.{target}_{np.dtype(real).name}{tag and '_' + tag}")
     vars(out).update(built)
     vars(out).update(bound)
     return out

@@ -22,9 +22,17 @@ REAL = float
 ZERO, ONE, HALF, TWO, FOUR = 0.0, 1.0, 0.5, 2.0, 4.0
 TWO_PI, TINY, NEAR_X = 2.0 * math.pi, 1e-12, 0.9
 
+#: the switches of the pair terms: compile-time constants that :func:`flocking.rules.compile`
+#: binds to a kernel's :class:`~flocking.backends.features.Features` (each field in capitals)
+NEMATIC = CONE = COHESION = False
+#: the values the pair terms read, in the order of the tuple ``pair`` that :func:`neighbour`
+#: takes (a kernel reads it once from ``Tables.pair``): the nematic ``bias``, the vision
+#: ``cone``, cohesion's ``r_c^2``, ``r_e``, ``r_a`` and slope
+PAIR = ("bias", "cone", "rc2", "re", "ra", "slope")
+
 #: the functions of this module that the compiler builds, callees first
-RULES = ("greater", "turn", "update_2d", "update_3d", "species_of", "sees", "cohesion_term", "neighbour",
-         "cohesive_sum", "nematic_2d", "nematic_3d")
+RULES = ("greater", "turn", "update_2d", "update_3d", "species_of", "sees", "pair_values", "cone_of",
+         "cohesion_term", "neighbour", "cohesive_sum", "nematic_2d", "nematic_3d")
 
 
 def greater(a, b):
@@ -148,14 +156,27 @@ def sees(a, d2, cone):
     return a * abs(a) >= cone * d2
 
 
-def cohesion_term(dx, dy, dz, d2, inside, rc2, re, ra, slope):
+def pair_values(table):
+    """The pair terms' values (:data:`PAIR`) from their table, as a tuple of scalars: a
+    kernel reads them once, and the compiler keeps them in registers."""
+    return table[0], table[1], table[2], table[3], table[4], table[5]
+
+
+def cone_of(pair):
+    """The vision cone's value in the pair terms' values ``pair`` (:data:`PAIR`)."""
+    return pair[1]
+
+
+def cohesion_term(dx, dy, dz, d2, inside, pair):
     """What a neighbour at ``r = (dx, dy, dz)``, ``d2 = |r|^2``, adds to cohesion when
     ``inside`` (counted: within reach and seen): its pull ``f(|r|) r / |r|`` with
     ``f = (|r| - r_e) slope`` below ``r_a`` (``slope = 1 / (4 (r_a - r_e))``: repulsive
     below ``r_e``) and 1 from ``r_a`` on; or, inside the hard core ``0 < |r| < r_c``
-    (``rc2 = r_c^2``), its push ``-r / |r|`` and a count of 1. Returns ``(pull, push,
-    count)`` as seven numbers. A particle at distance 0 (itself, or one on top of it)
-    adds nothing. No branch: the CPU kernels sum it in SIMD lanes."""
+    (``rc2 = r_c^2``), its push ``-r / |r|`` and a count of 1 (``rc2``, ``r_e``, ``r_a``
+    and the slope are read from ``pair``, :data:`PAIR`). Returns ``(pull, push, count)``
+    as seven numbers. A particle at distance 0 (itself, or one on top of it) adds
+    nothing. No branch: the CPU kernels sum it in SIMD lanes."""
+    bias, cone, rc2, re, ra, slope = pair
     r = math.sqrt(d2)
     inv = ONE / (r if r > ZERO else ONE)  # divided whatever r is: a select, not a branch
     core = inside & (d2 < rc2) & (r > ZERO)
@@ -166,38 +187,41 @@ def cohesion_term(dx, dy, dz, d2, inside, rc2, re, ra, slope):
     return g * dx, g * dy, g * dz, -(h * dx), -(h * dy), -(h * dz), ONE if core else ZERO
 
 
-def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, nematic, bias, with_cone, cone,
-              cohesion, rc2, re, ra, slope):
+def neighbour(dim, dx, dy, dz, d2, inside, ux, uy, uz, vx, vy, vz, coupling, pair):
     """What a candidate neighbour adds to a particle's sums (docs/model.md, steps 1 and 2
     with the extensions): the particle has heading ``u``, the candidate heading ``v``, at
     ``r = (dx, dy, dz)`` from it, ``d2 = |r|^2``; ``inside`` says whether the
-    neighbourhood rule admits it (within ``R``, or among the k nearest).
+    neighbourhood rule admits it (within ``R``, or among the k nearest); ``pair`` holds
+    the pair terms' values (:data:`PAIR`).
 
-    It counts only if also in the vision cone (``with_cone``: :func:`sees`). Its heading
-    is weighed by ``J c``: ``coupling``, the coupling of the two species (1 without a
-    matrix), and with ``nematic`` alignment ``c = -1`` where the headings point apart
+    It counts only if also in the vision cone (``CONE``: :func:`sees`). Its heading is
+    weighed by ``J c``: ``coupling``, the coupling of the two species (1 without a
+    matrix), and with ``NEMATIC`` alignment ``c = -1`` where the headings point apart
     (``u . v + bias < 0``; ``c = 1`` at 0): ``bias`` is 0, or 4 in a kernel that compiles
     nematic alignment in for a model without it (``u . v >= -1``: no sign flips). With
-    ``cohesion``, it adds :func:`cohesion_term`.
-    Returns ``(J c v (3), counted (0 or 1), pull (3), push (3), core count)``; the z
-    entries are 0 in 2D. The flags ``dim``, ``nematic``, ``with_cone`` and ``cohesion``
-    are compile-time constants of the kernels, which fold away what they leave out; no
-    other branch, so the CPU sums it in SIMD lanes."""
-    if with_cone:
+    ``COHESION``, it adds :func:`cohesion_term`.
+    Returns ``(J c v (3), counted (0 or 1), pull (3), push (3), core count)``
+    (:data:`flocking.rules.step.SUMS`); the z entries are 0 in 2D. ``dim`` and the
+    switches (``NEMATIC``, ``CONE``, ``COHESION``: the kernel's
+    :class:`~flocking.backends.features.Features`, bound by :func:`flocking.rules.compile`)
+    are compile-time constants, which fold away what they leave out; no other branch, so
+    the CPU sums it in SIMD lanes."""
+    bias, cone, rc2, re, ra, slope = pair
+    if CONE:
         a = ux * dx + uy * dy
         if dim == 3:
             a += uz * dz
         inside = inside & sees(a, d2, cone)
     n = ONE if inside else ZERO
     w = n * coupling
-    if nematic:
+    if NEMATIC:
         dot = ux * vx + uy * vy + bias
         if dim == 3:
             dot += uz * vz
         w = w * (-ONE if dot < ZERO else ONE)
     px = py = pz = qx = qy = qz = q = ZERO
-    if cohesion:
-        px, py, pz, qx, qy, qz, q = cohesion_term(dx, dy, dz, d2, inside, rc2, re, ra, slope)
+    if COHESION:
+        px, py, pz, qx, qy, qz, q = cohesion_term(dx, dy, dz, d2, inside, pair)
     wz = vz * w if dim == 3 else ZERO
     return vx * w, vy * w, wz, n, px, py, pz, qx, qy, qz, q
 
