@@ -17,10 +17,10 @@ N = 4000 the two starts give the same v_a within the errors. Each system's v_a i
 mean after ``--discard`` steps; a point is the mean over the systems, its error bar the
 standard error of that mean (the spread between systems). The exponents are fitted as the
 paper plots them: for beta, a straight line in ln v_a against ln((eta_c - eta) / eta_c)
-for ``--beta-n`` (4000: the largest N run from the paper's random start), over the noises from
-``--beta-from`` up to the last one below the peak of the susceptibility
-chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a parameter of the
-fit (the value that makes the line straightest); for delta, a straight line
+for each of ``--beta-sizes`` (4000, the largest N run from the paper's random start, and
+10 000), over the noises from ``--beta-from`` up to the last one below the peak of its
+susceptibility chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a
+parameter of the fit (the value that makes the line straightest); for delta, a straight line
 in ln v_a against ln rho over the densities up to ``--delta-max``. Their intervals are the
 16th to 84th percentiles over ``--bootstrap`` resamplings of the systems of every point.
 
@@ -122,18 +122,44 @@ def interval(samples: np.ndarray) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-def power_law(ax, args, colours, name: str, x, res: dict, label: str, xlabel: str, title: str) -> None:
-    """The panel of exponent ``name`` in log-log form: the fitted points ``res["mean"]``
-    against ``x`` with their errors, our fit (``res["fit"]``: the exponent first, the log of
-    the amplitude last) and the paper's exponent drawn through our points."""
-    exponent, ln_amplitude = res["fit"][0], res["fit"][-1]
-    ax.errorbar(x, res["mean"], yerr=res["error"], fmt="o", ms=3, capsize=2, color=colours[0], label=label)
-    grid = np.geomspace(x.min(), x.max(), 50)
+def beta(n: int, args, chi: np.ndarray, per: np.ndarray) -> dict | None:
+    """The fit of beta for size ``n`` (``per``: each system's v_a, ``chi`` the
+    susceptibility, at every noise) over the noises from ``--beta-from`` to below the
+    susceptibility's peak, printed; None, and said so, when fewer than
+    :data:`BETA_POINTS` noises lie there."""
+    peak = args.noises[int(np.argmax(chi))]
+    keep = [i for i, eta in enumerate(args.noises) if args.beta_from <= eta < peak]
+    noises = np.asarray(args.noises)[keep]
+    if len(keep) < BETA_POINTS:
+        print(f"beta (N = {n}): not fitted: {len(keep)} noises from {args.beta_from:g} to below the "
+              f"susceptibility's peak at {peak:g}, fewer than {BETA_POINTS}")
+        return None
+    bm, be = mean_error(per[keep])
+    fit = fit_beta(noises, bm, be)
+    lo, hi = interval(bootstrap(fit_beta, noises, per[keep], args.bootstrap, args.seed))
+    print(f"beta (N = {n}, eta from {args.beta_from:g} to below the susceptibility's peak at {peak:g}, "
+          f"{len(keep)} points): {fit[0]:.3f}, 68% interval [{lo:.3f}, {hi:.3f}], eta_c(L) = {fit[1]:.3f}; "
+          f"paper {PAPER['beta'][0]} +- {PAPER['beta'][1]}")
+    return {"noises": noises, "mean": bm, "error": be, "fit": fit, "interval": (lo, hi)}
+
+
+def power_law(ax, args, colours, name: str, series, xlabel: str, title: str) -> None:
+    """The panel of exponent ``name`` in log-log form: for each of ``series``, ``(x, res,
+    label, colour)``, the fitted points ``res["mean"]`` against ``x`` with their errors and
+    our fit (``res["fit"]``: the exponent first, the log of the amplitude last), labelled
+    with its 68 % interval; the paper's exponent (dashed) drawn through the last series'
+    points."""
     symbol = rf"$\{name}$"
-    ax.plot(grid, np.exp(ln_amplitude) * grid**exponent, color=colours[0], lw=1, label=f"fit: {symbol} = {exponent:.2f}")
+    for x, res, label, colour in series:
+        exponent, ln_amplitude = res["fit"][0], res["fit"][-1]
+        lo, hi = res["interval"]
+        ax.errorbar(x, res["mean"], yerr=res["error"], fmt="o", ms=3, capsize=2, color=colour)
+        grid = np.geomspace(x.min(), x.max(), 50)
+        ax.plot(grid, np.exp(ln_amplitude) * grid**exponent, color=colour, lw=1,
+                label=f"{label}: {symbol} = {exponent:.2f} [{lo:.2f}, {hi:.2f}]")
     mid = np.exp(np.mean(np.log(x)))
     anchor = np.exp(ln_amplitude) * mid**exponent
-    ax.plot(grid, anchor * (grid / mid) ** PAPER[name][0], color=colours[1], lw=1, ls="--",
+    ax.plot(grid, anchor * (grid / mid) ** PAPER[name][0], color=house.get_theme(args.theme).text, lw=1, ls="--",
             label=f"paper: {symbol} = {PAPER[name][0]:g}")
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -163,23 +189,26 @@ def figure(res: dict, args, path: str) -> None:
     b.set_ylim(0, 1.02)
     b.set_title(r"Fig. 2b: L = 20, $\eta$ = 2", fontsize=house.fontsize(fig))
 
-    if res["beta"] is None:
+    fitted = {n: fit for n, fit in res["beta"].items() if fit is not None}
+    if not fitted:
         c.text(0.5, 0.5, f"$\\beta$ not fitted:\nfewer than {BETA_POINTS} noises\nbelow the peak of $\\chi$", ha="center",
                va="center", transform=c.transAxes, color=house.get_theme(args.theme).text, fontsize=house.fontsize(fig))
         c.set_axis_off()
     else:
-        eta_c = res["beta"]["fit"][1]
-        u = (eta_c - np.asarray(res["beta"]["noises"])) / eta_c
-        power_law(c, args, colours, "beta", u, res["beta"], f"N = {res['beta']['n']}",
-                  rf"$(\eta_c - \eta)/\eta_c$, $\eta_c$ = {eta_c:.2f}", r"$\beta$: Fig. 2a below $\eta_c$")
+        series = [((fit["fit"][1] - np.asarray(fit["noises"])) / fit["fit"][1], fit,
+                   f"N = {n}", colours[args.sizes.index(n) % len(colours)]) for n, fit in fitted.items()]
+        eta_c = ", ".join(f"{fit['fit'][1]:.2f}" for fit in fitted.values())
+        power_law(c, args, colours, "beta", series, rf"$(\eta_c - \eta)/\eta_c$, $\eta_c$ = {eta_c}",
+                  r"$\beta$: Fig. 2a below $\eta_c$")
     d.errorbar(args.densities, m, yerr=e, fmt="o", ms=3, capsize=2, color=colours[0], alpha=0.35)
-    power_law(d, args, colours, "delta", np.asarray(res["delta"]["densities"]), res["delta"], "fitted points", r"density $\rho$", r"$\delta$: Fig. 2b at small density")
+    power_law(d, args, colours, "delta", [(np.asarray(res["delta"]["densities"]), res["delta"], "fitted", colours[0])],
+              r"density $\rho$", r"$\delta$: Fig. 2b at small density")
     big = [n for n in args.sizes if n >= args.aligned_from]
     aligned = f" (headings aligned for N = {', '.join(f'{n:,}' for n in big)})" if big else ""
     house.title(fig, "Vicsek et al. 1995: order against noise and density, and the exponents",
                 f"$v_0$ = 0.03 · R = 1 · forward update · noise uniform in [$-\\eta/2$, $\\eta/2$] · "
                 f"random start{aligned} · {args.replicas} systems a point, {args.steps:,} steps, first {args.discard:,} left out · "
-                "bars: standard errors · dashed: the paper's exponents drawn through our points "
+                "bars: standard errors · fits: [68 % interval] · dashed: the paper's exponents drawn through our points "
                 "(its curves could not be read here)")
     house.save(fig, path)
 
@@ -194,8 +223,8 @@ def parse(argv=None):
     p.add_argument("--discard", type=int, default=3_000)
     p.add_argument("--aligned-from", type=int, default=10_000,
                    help="the smallest N started with every heading equal (smaller N: random headings, as the paper)")
-    p.add_argument("--beta-n", type=int, default=4000,
-                   help="the N fitted for beta, one of --sizes (default: the largest run from random headings)")
+    p.add_argument("--beta-sizes", default="4000,10000",
+                   help="the N fitted for beta, each one of --sizes, comma-separated (default: the two largest)")
     p.add_argument("--beta-from", type=float, default=1.0,
                    help="the lowest noise fitted for beta (the highest: the last below the susceptibility's peak)")
     p.add_argument("--delta-max", type=float, default=1.0, help="the largest density fitted for delta")
@@ -226,8 +255,9 @@ def parse(argv=None):
             p.error(f"{name}: must be >= {low} (got {value})")
     if args.discard >= args.steps:
         p.error(f"--discard: must be below --steps {args.steps} (got {args.discard})")
-    if args.beta_n not in args.sizes:
-        p.error(f"--beta-n must be one of --sizes {args.sizes} (got {args.beta_n})")
+    args.beta_sizes = numbers("--beta-sizes", args.beta_sizes, int, 1)
+    if any(n not in args.sizes for n in args.beta_sizes):
+        p.error(f"--beta-sizes: each must be one of --sizes {args.sizes} (got {args.beta_sizes})")
     if sum(eta >= args.beta_from for eta in args.noises) < BETA_POINTS:
         p.error(f"--beta-from: at least {BETA_POINTS} of --noises must be >= it, to fit beta (got {args.beta_from:g})")
     if sum(rho <= args.delta_max for rho in args.densities) < 2:
@@ -263,24 +293,7 @@ def main(argv=None) -> dict:
     for rho, mi, ei in zip(args.densities, *res["fig2b"]):
         print(f"  rho {rho:<5g} N {int(round(rho * 400)):<5d} v_a {mi:.3f} +- {ei:.3f}")
 
-    n = args.beta_n
-    peak = args.noises[int(np.argmax(res["chi"][n]))]
-    keep = [i for i, eta in enumerate(args.noises) if args.beta_from <= eta < peak]
-    noises = np.asarray(args.noises)[keep]
-    if len(keep) < BETA_POINTS:
-        res["beta"] = None
-        print(f"beta (N = {n}): not fitted: {len(keep)} noises from {args.beta_from:g} to below the "
-              f"susceptibility's peak at {peak:g}, fewer than {BETA_POINTS}")
-    else:
-        per = per_size[n][keep]
-        bm, be = mean_error(per)
-        fit = fit_beta(noises, bm, be)
-        boot = bootstrap(fit_beta, noises, per, args.bootstrap, args.seed)
-        res["beta"] = {"n": n, "noises": noises, "mean": bm, "error": be, "fit": fit, "interval": interval(boot)}
-        print(f"beta (N = {n}, eta from {args.beta_from:g} to below the susceptibility's peak at {peak:g}, "
-              f"{len(keep)} points): {fit[0]:.3f}, 68% interval [{res['beta']['interval'][0]:.3f}, "
-              f"{res['beta']['interval'][1]:.3f}], eta_c(L) = {fit[1]:.3f}; paper {PAPER['beta'][0]} +- "
-              f"{PAPER['beta'][1]}")
+    res["beta"] = {n: beta(n, args, res["chi"][n], per_size[n]) for n in args.beta_sizes}
 
     keep = [i for i, rho in enumerate(args.densities) if rho <= args.delta_max]
     rho = np.asarray(args.densities)[keep]

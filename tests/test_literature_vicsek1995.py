@@ -103,7 +103,8 @@ def test_the_fits_recover_exact_power_laws():
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--beta-n", "500"], r"--beta-n must be one of --sizes"),
+    (["--beta-sizes", "4000,500"], r"--beta-sizes: each must be one of --sizes"),
+    (["--beta-sizes", "4000,"], r"--beta-sizes: comma-separated numbers, each >= 1"),
     (["--noises", "0,1,2", "--beta-from", "1.5"], r"--beta-from: at least 3 of --noises must be >= it"),
     (["--delta-max", "0.1"], r"--delta-max: at least 2 of --densities must be <= it"),
     (["--sizes", "40,4k"], r"--sizes: comma-separated numbers, each >= 1 \(got '40,4k'\)$"),
@@ -128,9 +129,9 @@ def test_a_beta_window_left_empty_by_the_peak_still_draws_the_figure(tmp_path, c
     # Three noises: at most two lie below the susceptibility's peak, too few for the
     # three-parameter fit of beta. The run says so and draws the other panels.
     out = tmp_path / "v.png"
-    res = vicsek.main(["--sizes", "40", "--beta-n", "40", "--noises", "0,2,4", "--beta-from", "0",
+    res = vicsek.main(["--sizes", "40", "--beta-sizes", "40", "--noises", "0,2,4", "--beta-from", "0",
                        "--densities", "0.5,1", "--replicas", "2", "--steps", "40", "--discard", "10",
                        "--bootstrap", "5", "--out", str(out)])
-    assert res["beta"] is None and res["delta"]["densities"].tolist() == [0.5, 1.0]
+    assert res["beta"] == {40: None} and res["delta"]["densities"].tolist() == [0.5, 1.0]
     assert "beta (N = 40): not fitted:" in capsys.readouterr().out
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
