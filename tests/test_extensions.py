@@ -247,6 +247,36 @@ def test_species_of_is_the_id_range_holding_the_particle():
         assert [species_of(pid, bounds[:2], 1) for pid in range(12)] == [0] * 12
 
 
+def test_the_pair_terms_follow_their_switches_and_one_record_of_values():
+    """The kernels hand every pair to ``neighbour`` with the rules compiled for their
+    ``Features`` and the values of ``Tables.pair``: a term is on exactly when its switch
+    is, and the record holds every name of ``PAIR``, in order, read whole by
+    ``pair_values``."""
+    from flocking.backends.features import NEUTRAL, Features, tables
+    from flocking.rules import compile as compile_rules
+    from flocking.rules.physics import PAIR
+
+    model = Model(n=10, box=5.0, vision=1.0, alignment_rule="nematic", cohesion=1.0)
+    table = tables(model).pair
+    assert len(table) == len(PAIR)
+    off, on = compile_rules("cpu"), compile_rules("cpu", switches=Features(extended=True, nematic=True, cone=True,
+                                                                           cohesion=True))
+    assert off.pair_values(table) == on.pair_values(table) == tuple(table)
+    assert on.cone_of(on.pair_values(table)) == table[PAIR.index("cone")]
+    # a neighbour behind the particle (outside a cone of half-angle 1), heading the other way,
+    # at 0.7 (between r_e and r_a: pulled by cohesion)
+    args = (2, -0.7, 0.0, 0.0, 0.49, True, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 1.0, tuple(table))
+    assert off.neighbour(*args)[:4] == (-1.0, 0.0, 0.0, 1.0)  # counted, as it is
+    assert off.neighbour(*args)[4:] == (0.0,) * 7
+    assert on.neighbour(*args) == (0.0,) * 11  # outside the cone: nothing at all
+    nematic = compile_rules("cpu", switches=Features(extended=True, nematic=True))
+    assert nematic.neighbour(*args)[:4] == (1.0, 0.0, 0.0, 1.0)  # its sign flipped
+    cohesion = compile_rules("cpu", switches=Features(extended=True, cohesion=True))
+    rc, re, ra = model.cohesion_radii
+    assert cohesion.neighbour(*args)[4] == pytest.approx(-(0.7 - re) / (4 * (ra - re)), abs=1e-15) != 0.0
+    assert set(NEUTRAL) < set(Features._fields) and Features(cohesion=True).weighted
+
+
 @pytest.mark.parametrize("backend", ["cpu", "reference"])
 def test_coupling_minus_one_between_species(backend):
     species = [{"n": 1}, {"n": 1}]
