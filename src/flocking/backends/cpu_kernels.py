@@ -173,8 +173,8 @@ def note(near, k, row, v0, v1, v2, v3, w0, w1, w2, w3):
     return k + COUNT[intrinsics.mask4(w0 != 0.0, w1 != 0.0, w2 != 0.0, w3 != 0.0)]
 
 
-# These read the flags (COUPLING, NEMATIC, CONE, COHESION) as globals: compiled per variant by build() and
-# inlined into its kernels, what a flag leaves out is never compiled.
+# These read the flags (COUPLING, NEMATIC, CONE, COHESION) as globals: compiled per variant
+# by build() and inlined into its kernels, what a flag leaves out is never compiled.
 
 
 def pair_2d(buf, j, last, xi, yi, ux, uy, r2, jr, pv):

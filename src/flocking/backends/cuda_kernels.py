@@ -4,7 +4,8 @@ The physics is :mod:`flocking.rules`, compiled as CUDA device functions for the 
 float type and the build's features (``R = compile_rules("cuda", real, features)``): the
 same text as the CPU kernels', so in float64 a GPU step matches a CPU or reference step to
 rounding. Every constant is a ``real``, so float32 kernels never silently promote to
-float64; only the moment sums are accumulated in float64. The kernels here are thin loops around those rules.
+float64; only the moment sums are accumulated in float64. The kernels here are thin loops
+around those rules.
 
 Layout. ``R`` replicas of ``N`` particles each (``R = 1`` for one system) share every
 array: replica ``r`` owns the slots ``[r N, (r + 1) N)``, kept in the order (cell, id),
