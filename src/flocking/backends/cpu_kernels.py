@@ -47,7 +47,7 @@ import numba
 import numpy as np
 
 from ..rules import compile as compile_rules
-from ..rules import rebind
+from ..rules import rebind, switch_bits
 from . import cells, intrinsics
 from .cells import ALL, U1
 from .features import NEUTRAL, Features
@@ -699,7 +699,7 @@ def cache_tag(features: Features, dim: int) -> str:
     >>> cache_tag(Features(extended=True, cohesion=True), 2)
     '2d_10001'
     """
-    return f"{dim}d_" + "".join("1" if on else "0" for on in features)
+    return f"{dim}d_" + switch_bits(features)
 
 
 @functools.lru_cache(maxsize=None)

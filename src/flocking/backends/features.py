@@ -25,6 +25,7 @@ import typing
 import numpy as np
 
 from ..model import Model
+from ..rules import switch_constants
 from ..rules.physics import PAIR
 from ..space import Space
 
@@ -55,7 +56,7 @@ class Features(typing.NamedTuple):
         >>> Features(cone=True).flags()["CONE"]
         True
         """
-        return {name.upper(): bool(on) for name, on in self._asdict().items()}
+        return switch_constants(self)
 
 
 #: the pair weights that a value of :class:`Tables` makes exactly neutral (a coupling of 1,

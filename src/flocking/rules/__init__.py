@@ -62,6 +62,25 @@ def rebind(function, namespace: dict, qualname: str | None = None):
     return out
 
 
+def switch_constants(switches) -> dict[str, bool]:
+    """The constants code is compiled with for ``switches``, a named tuple of booleans (a
+    kernel's :class:`~flocking.backends.features.Features`): each field's name in capitals.
+
+    >>> import typing
+    >>> class On(typing.NamedTuple):
+    ...     cone: bool = False
+    >>> switch_constants(On(cone=True))
+    {'CONE': True}
+    """
+    return {name.upper(): bool(on) for name, on in switches._asdict().items()}
+
+
+def switch_bits(switches) -> str:
+    """``switches`` as a string of bits, in field order: how a compiled variant is named
+    (its module here, its kernels in numba's cache)."""
+    return "".join("1" if on else "0" for on in switches)
+
+
 @functools.lru_cache(maxsize=None)
 def compile(target: str = "cpu", real=np.float64, switches=None) -> types.ModuleType:  # noqa: A001 - the verb is the point
     """Every rule compiled for ``target`` (``"cpu"`` or ``"cuda"``) with floats of type
@@ -87,7 +106,7 @@ def compile(target: str = "cpu", real=np.float64, switches=None) -> types.Module
     built: dict[str, object] = {}
     bound = constants(real)
     if switches is not None:
-        bound.update({name.upper(): bool(on) for name, on in switches._asdict().items()})
+        bound.update(switch_constants(switches))
     for module in MODULES:
         namespace = dict(vars(module))
         # a warning adds a registry to its globals: made beforehand, because numba's CUDA
@@ -97,7 +116,7 @@ def compile(target: str = "cpu", real=np.float64, switches=None) -> types.Module
         namespace.update(built)
         for name in module.RULES:
             built[name] = namespace[name] = jit(rebind(getattr(module, name), namespace))
-    tag = "".join("1" if on else "0" for on in switches) if switches is not None else ""
+    tag = switch_bits(switches) if switches is not None else ""
     out = types.ModuleType(f"{__name__}.{target}_{np.dtype(real).name}{tag and '_' + tag}")
     vars(out).update(built)
     vars(out).update(bound)
