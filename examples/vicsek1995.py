@@ -18,15 +18,15 @@ mean after ``--discard`` steps; a point is the mean over the systems, its error 
 standard error of that mean (the spread between systems). The exponents are fitted as the
 paper plots them: for beta, a straight line in ln v_a against ln((eta_c - eta) / eta_c)
 for each of ``--beta-sizes`` (4000, the largest N run from the paper's random start, and
-10 000), over the noises from ``--beta-from`` up to the last one below the peak of its
-susceptibility chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a
+10 000, which also run the finer noises of ``--beta-noises``), over the noises from
+``--beta-from`` up to the last one below the peak of its susceptibility chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a
 parameter of the fit (the value that makes the line straightest); for delta, a straight line
 in ln v_a against ln rho over the densities up to ``--delta-max``. Their intervals are the
 16th to 84th percentiles over ``--bootstrap`` resamplings of the systems of every point.
 
     python examples/vicsek1995.py --out examples/vicsek1995-figures.png
-    # 973 CPU-seconds on one thread (the default --threads 1): 17.0 min of wall clock on the
-    # project's 2 cores; N = 10 000 takes 616 s of it, N = 4000 276 s.
+    # 2638 CPU-seconds on one thread (the default --threads 1): 44 min of wall clock on the
+    # project's 2 cores; N = 10 000 (19 noises) takes 1646 s of it, N = 4000 719 s.
     # The figure committed.
 
 The paper's numbers beside ours: beta = 0.45 and delta = 0.35 as the paper quotes them
@@ -50,6 +50,7 @@ from flocking.viz import style as house
 BASE = dict(speed=0.03, radius=1.0, update="forward", noise_type="angular", noise_scale="radians")
 PAPER = {"beta": (0.45, 0.07), "delta": (0.35, 0.06)}  # the paper's text, value and its +-
 NOISES = (0.0, 0.5, 1.0, 1.5, 2.0, 2.25, 2.5, 2.75, 3.0, 3.25, 3.5, 3.75, 4.0, 4.5, 5.0)
+BETA_NOISES = (1.75, 2.125, 2.375, 2.625)  # more points below the peak of chi, for the sizes fitted
 SIZES = (40, 100, 400, 4000, 10000)
 BETA_POINTS = 3  # the fit of beta has three parameters (beta, eta_c, the amplitude)
 DENSITIES = (0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
@@ -122,14 +123,21 @@ def interval(samples: np.ndarray) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-def beta(n: int, args, chi: np.ndarray, per: np.ndarray) -> dict | None:
+def noises_of(n: int, args) -> list[float]:
+    """The noises size ``n`` runs, in the order its seeds are numbered: ``--noises``, then,
+    for a size fitted for beta, those of ``--beta-noises`` not already among them."""
+    extra = [eta for eta in args.beta_noises if eta not in args.noises] if n in args.beta_sizes else []
+    return list(args.noises) + extra
+
+
+def beta(n: int, args, noises, chi: np.ndarray, per: np.ndarray) -> dict | None:
     """The fit of beta for size ``n`` (``per``: each system's v_a, ``chi`` the
-    susceptibility, at every noise) over the noises from ``--beta-from`` to below the
-    susceptibility's peak, printed; None, and said so, when fewer than
-    :data:`BETA_POINTS` noises lie there."""
-    peak = args.noises[int(np.argmax(chi))]
-    keep = [i for i, eta in enumerate(args.noises) if args.beta_from <= eta < peak]
-    noises = np.asarray(args.noises)[keep]
+    susceptibility, at each of the ascending ``noises``) over the noises from
+    ``--beta-from`` to below the susceptibility's peak, printed; None, and said so, when
+    fewer than :data:`BETA_POINTS` noises lie there."""
+    peak = noises[int(np.argmax(chi))]
+    keep = [i for i, eta in enumerate(noises) if args.beta_from <= eta < peak]
+    noises = np.asarray(noises)[keep]
     if len(keep) < BETA_POINTS:
         print(f"beta (N = {n}): not fitted: {len(keep)} noises from {args.beta_from:g} to below the "
               f"susceptibility's peak at {peak:g}, fewer than {BETA_POINTS}")
@@ -176,8 +184,8 @@ def figure(res: dict, args, path: str) -> None:
     """Fig. 2a, Fig. 2b and the two fits in log-log form, the paper's exponents beside ours."""
     fig, (a, b, c, d) = house.panels(args.size, args.theme, 4)
     colours = house.palette(args.theme)
-    for k, (n, (m, e)) in enumerate(res["fig2a"].items()):
-        a.errorbar(args.noises, m, yerr=e, fmt="o-", ms=3, lw=1, capsize=2, color=colours[k % len(colours)],
+    for k, (n, (noises, m, e)) in enumerate(res["fig2a"].items()):
+        a.errorbar(noises, m, yerr=e, fmt="o-", ms=3, lw=1, capsize=2, color=colours[k % len(colours)],
                    label=f"N = {n}" + (" (aligned start)" if n >= args.aligned_from else ""))
     house.label_axes(a, r"noise $\eta$", r"$v_a$")
     a.set_ylim(0, 1.02)
@@ -225,6 +233,8 @@ def parse(argv=None):
                    help="the smallest N started with every heading equal (smaller N: random headings, as the paper)")
     p.add_argument("--beta-sizes", default="4000,10000",
                    help="the N fitted for beta, each one of --sizes, comma-separated (default: the two largest)")
+    p.add_argument("--beta-noises", default=",".join(map(str, BETA_NOISES)),
+                   help="more noises run for each of --beta-sizes, comma-separated (empty: none)")
     p.add_argument("--beta-from", type=float, default=1.0,
                    help="the lowest noise fitted for beta (the highest: the last below the susceptibility's peak)")
     p.add_argument("--delta-max", type=float, default=1.0, help="the largest density fitted for delta")
@@ -258,6 +268,7 @@ def parse(argv=None):
     args.beta_sizes = numbers("--beta-sizes", args.beta_sizes, int, 1)
     if any(n not in args.sizes for n in args.beta_sizes):
         p.error(f"--beta-sizes: each must be one of --sizes {args.sizes} (got {args.beta_sizes})")
+    args.beta_noises = numbers("--beta-noises", args.beta_noises, float, 0.0) if args.beta_noises else []
     if sum(eta >= args.beta_from for eta in args.noises) < BETA_POINTS:
         p.error(f"--beta-from: at least {BETA_POINTS} of --noises must be >= it, to fit beta (got {args.beta_from:g})")
     if sum(rho <= args.delta_max for rho in args.densities) < 2:
@@ -275,14 +286,17 @@ def main(argv=None) -> dict:
     for n in args.sizes:
         t0 = time.perf_counter()
         start = "aligned" if n >= args.aligned_from else "random"
-        m1, m2 = order(n, 4.0, args.noises, args.replicas, args.steps, args.discard, args.seed, start)
+        noises = noises_of(n, args)
+        m1, m2 = order(n, 4.0, noises, args.replicas, args.steps, args.discard, args.seed, start)
+        rank = np.argsort(noises)  # the seeds follow noises_of's order; the results ascend
+        noises, m1, m2 = np.asarray(noises)[rank], m1[rank], m2[rank]
         per_size[n] = m1
         m, e = mean_error(m1)
-        res["fig2a"][n] = (m, e)
+        res["fig2a"][n] = (noises, m, e)
         res["chi"][n] = susceptibility(n, m1, m2)
         print(f"Fig. 2a  N = {n} (L = {np.sqrt(n / 4):.2f}), {start} headings at the start, "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
-        for eta, mi, ei, chi in zip(args.noises, m, e, res["chi"][n]):
+        for eta, mi, ei, chi in zip(noises, m, e, res["chi"][n]):
             print(f"  eta {eta:<5g} v_a {mi:.3f} +- {ei:.3f}   chi {chi:.2f}")
 
     t0 = time.perf_counter()
@@ -293,7 +307,7 @@ def main(argv=None) -> dict:
     for rho, mi, ei in zip(args.densities, *res["fig2b"]):
         print(f"  rho {rho:<5g} N {int(round(rho * 400)):<5d} v_a {mi:.3f} +- {ei:.3f}")
 
-    res["beta"] = {n: beta(n, args, res["chi"][n], per_size[n]) for n in args.beta_sizes}
+    res["beta"] = {n: beta(n, args, res["fig2a"][n][0], res["chi"][n], per_size[n]) for n in args.beta_sizes}
 
     keep = [i for i, rho in enumerate(args.densities) if rho <= args.delta_max]
     rho = np.asarray(args.densities)[keep]

@@ -106,6 +106,7 @@ def test_the_fits_recover_exact_power_laws():
     (["--beta-sizes", "4000,500"], r"--beta-sizes: each must be one of --sizes"),
     (["--beta-sizes", "4000,"], r"--beta-sizes: comma-separated numbers, each >= 1"),
     (["--noises", "0,1,2", "--beta-from", "1.5"], r"--beta-from: at least 3 of --noises must be >= it"),
+    (["--beta-noises", "1.5,-2"], r"--beta-noises: comma-separated numbers, each >= 0"),
     (["--delta-max", "0.1"], r"--delta-max: at least 2 of --densities must be <= it"),
     (["--sizes", "40,4k"], r"--sizes: comma-separated numbers, each >= 1 \(got '40,4k'\)$"),
     (["--noises=-1,1,2,3"], r"--noises: comma-separated numbers, each >= 0"),
@@ -129,9 +130,29 @@ def test_a_beta_window_left_empty_by_the_peak_still_draws_the_figure(tmp_path, c
     # Three noises: at most two lie below the susceptibility's peak, too few for the
     # three-parameter fit of beta. The run says so and draws the other panels.
     out = tmp_path / "v.png"
-    res = vicsek.main(["--sizes", "40", "--beta-sizes", "40", "--noises", "0,2,4", "--beta-from", "0",
+    res = vicsek.main(["--sizes", "40", "--beta-sizes", "40", "--noises", "0,2,4", "--beta-noises", "", "--beta-from", "0",
                        "--densities", "0.5,1", "--replicas", "2", "--steps", "40", "--discard", "10",
                        "--bootstrap", "5", "--out", str(out)])
     assert res["beta"] == {40: None} and res["delta"]["densities"].tolist() == [0.5, 1.0]
     assert "beta (N = 40): not fitted:" in capsys.readouterr().out
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_finer_noises_run_only_for_the_sizes_fitted_and_leave_the_others_seeds_alone(tmp_path):
+    # --beta-noises adds noises to the sizes fitted for beta, after --noises in the order
+    # their seeds are numbered, so every point of --noises is the same run, bit for bit,
+    # with or without them; the results come out in ascending noise.
+    common = ["--sizes", "40,100", "--beta-sizes", "40", "--noises", "0,1,2,3", "--beta-from", "0",
+              "--densities", "0.5,1", "--replicas", "2", "--steps", "30", "--discard", "10", "--bootstrap", "5"]
+    args = vicsek.parse(common + ["--beta-noises", "2.5,1,0.5"])
+    assert vicsek.noises_of(40, args) == [0.0, 1.0, 2.0, 3.0, 2.5, 0.5]
+    assert vicsek.noises_of(100, args) == [0.0, 1.0, 2.0, 3.0]
+    finer = vicsek.main(common + ["--beta-noises", "2.5,1,0.5", "--out", str(tmp_path / "a.png")])
+    plain = vicsek.main(common + ["--beta-noises", "", "--out", str(tmp_path / "b.png")])
+    noises, m, e = finer["fig2a"][40]
+    assert noises.tolist() == [0.0, 0.5, 1.0, 2.0, 2.5, 3.0]
+    same = [0, 2, 3, 5]
+    np.testing.assert_array_equal(m[same], plain["fig2a"][40][1])
+    np.testing.assert_array_equal(e[same], plain["fig2a"][40][2])
+    assert finer["fig2a"][100][0].tolist() == [0.0, 1.0, 2.0, 3.0]
+    np.testing.assert_array_equal(finer["fig2a"][100][1], plain["fig2a"][100][1])
