@@ -19,8 +19,8 @@ standard error of that mean (the spread between systems). The exponents are fitt
 paper plots them: for beta, a straight line in ln v_a against ln((eta_c - eta) / eta_c)
 for each of ``--beta-sizes`` (4000, the largest N run from the paper's random start, and
 10 000, which also run the finer noises of ``--beta-noises``), over the noises from
-``--beta-from`` up to the last one below the peak of its susceptibility chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a
-parameter of the fit (the value that makes the line straightest); for delta, a straight line
+``--beta-from`` up to the last one below the peak of its susceptibility
+chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a parameter of the fit (the value that makes the line straightest); for delta, a straight line
 in ln v_a against ln rho over the densities up to ``--delta-max``. Their intervals are the
 16th to 84th percentiles over ``--bootstrap`` resamplings of the systems of every point.
 
@@ -50,7 +50,7 @@ from flocking.viz import style as house
 BASE = dict(speed=0.03, radius=1.0, update="forward", noise_type="angular", noise_scale="radians")
 PAPER = {"beta": (0.45, 0.07), "delta": (0.35, 0.06)}  # the paper's text, value and its +-
 NOISES = (0.0, 0.5, 1.0, 1.5, 2.0, 2.25, 2.5, 2.75, 3.0, 3.25, 3.5, 3.75, 4.0, 4.5, 5.0)
-BETA_NOISES = (1.75, 2.125, 2.375, 2.625)  # more points below the peak of chi, for the sizes fitted
+BETA_NOISES = (1.75, 2.125, 2.375, 2.625)  # more points near the peak of chi, for the sizes fitted
 SIZES = (40, 100, 400, 4000, 10000)
 BETA_POINTS = 3  # the fit of beta has three parameters (beta, eta_c, the amplitude)
 DENSITIES = (0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
