@@ -20,7 +20,8 @@ paper plots them: for beta, a straight line in ln v_a against ln((eta_c - eta) /
 for each of ``--beta-sizes`` (4000, the largest N run from the paper's random start, and
 10 000, which also run the finer noises of ``--beta-noises``), over the noises from
 ``--beta-from`` up to the last one below the peak of its susceptibility
-chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a parameter of the fit (the value that makes the line straightest); for delta, a straight line
+chi = N (<v_a^2> - <v_a>^2) (the finite system's transition), eta_c(L) a parameter of
+the fit (the value that makes the line straightest); for delta, a straight line
 in ln v_a against ln rho over the densities up to ``--delta-max``. Their intervals are the
 16th to 84th percentiles over ``--bootstrap`` resamplings of the systems of every point.
 
