@@ -45,6 +45,8 @@ _INV53 = 1.0 / 9007199254740992.0  # 2**-53
 
 #: the rules :func:`flocking.rules.compile` builds for the kernels, callees first
 RULES = ("absorb", "mix", "draw")
+#: the rules numba inlines into their callers (:func:`flocking.rules.compile` says which)
+INLINED = ()
 
 
 def absorb(h, x):

@@ -20,6 +20,8 @@ REAL = float
 
 #: the functions of this module that the compiler builds, callees first
 RULES = ("lesser", "better", "offer", "knearest")
+#: the rules numba inlines into their callers (:func:`flocking.rules.compile` says which)
+INLINED = ("better", "offer", "knearest")
 
 
 def lesser(a, b):

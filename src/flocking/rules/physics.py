@@ -33,6 +33,8 @@ PAIR = ("bias", "cone", "rc2", "re", "ra", "slope")
 #: the functions of this module that the compiler builds, callees first
 RULES = ("greater", "turn", "update_2d", "update_3d", "species_of", "sees", "pair_values", "cone_of",
          "cohesion_term", "neighbour", "cohesive_sum", "nematic_2d", "nematic_3d")
+#: the rules numba inlines into their callers (:func:`flocking.rules.compile` says which)
+INLINED = ("update_2d", "update_3d", "species_of", "pair_values")
 
 
 def greater(a, b):

@@ -30,6 +30,8 @@ SUM0 = (0.0,) * len(SUMS)
 
 #: the functions of this module that the compiler builds, callees first
 RULES = ("plus", "finish", "keep", "recall")
+#: the rules numba inlines into their callers (:func:`flocking.rules.compile` says which)
+INLINED = ("finish", "keep", "recall")
 
 
 def plus(s, t):
