@@ -104,7 +104,7 @@ def compile(target: str = "cpu", real=np.float64, switches=None) -> types.Module
         # neighbours 3 times and in 3D 1.15 times as long. The others, small scalar
         # functions, are compiled on their own and LLVM inlines them: numba's inlining
         # types a callee again at each call site, which made compiling a kernel take 1.5 to
-        # 2.7 times as long.
+        # 2.5 times as long.
         jits = {False: numba.njit(fastmath=False, error_model="numpy"),
                 True: numba.njit(inline="always", fastmath=False, error_model="numpy")}
     elif target == "cuda":
