@@ -33,11 +33,12 @@ import numba
 import numpy as np
 
 from .checks import ParameterError, integer, real
+from .rules import cached
 from .rules import compile as compile_rules
 
 _R = compile_rules("cpu")
-_jit = numba.njit(cache=True)
-_pjit = numba.njit(cache=True, parallel=True)
+_jit = cached()
+_pjit = cached(parallel=True)
 
 #: pairs handed out at a time by :meth:`NeighbourQuery.pair_blocks` (about 100 MB of arrays)
 BLOCK_PAIRS = 1 << 22

@@ -38,6 +38,7 @@ import numpy as np
 from .model import Model
 from .neighbour_query import BLOCK_PAIRS, CellList, NeighbourQuery, Pairs
 from .rules import compile as compile_rules
+from .rules import rebind, source_digest
 
 _R = compile_rules("cpu")
 
@@ -54,9 +55,13 @@ def _wrap(x, length):
 def _ufuncs() -> tuple:
     """:func:`flocking.rules.geometry.minimum_image` and ``wrap`` as NumPy ufuncs
     (broadcasting), made on first use: made at import, they cost every command that never
-    measures a distance a third of a second (loading them from numba's cache included)."""
-    return (numba.vectorize(["float64(float64, float64, float64)"], cache=True)(_minimum_image),
-            numba.vectorize(["float64(float64, float64)"], cache=True)(_wrap))
+    measures a distance a third of a second (loading them from numba's cache included).
+    Cached under names with :func:`flocking.rules.source_digest`, so that a changed rule
+    is compiled again."""
+    digest = source_digest()
+    return (numba.vectorize(["float64(float64, float64, float64)"], cache=True)(
+                rebind(_minimum_image, globals(), f"_minimum_image_{digest}")),
+            numba.vectorize(["float64(float64, float64)"], cache=True)(rebind(_wrap, globals(), f"_wrap_{digest}")))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -22,6 +22,7 @@ import numba
 import numpy as np
 
 from ..model import Model
+from ..rules import cached
 from ..rules import compile as compile_rules
 
 R = compile_rules("cpu")
@@ -56,7 +57,7 @@ def cell_grid(model: Model) -> np.ndarray:
 # -- the cell structure: parallel stable counting sort ---------------------------------
 
 
-@numba.njit(cache=True, inline="always")
+@cached(inline="always")
 def cell_of(pos, i, nc, inv):
     """The cell of slot ``i``, numbered by :func:`flocking.rules.geometry.cell_number`
     (x fastest, so a row of cells is contiguous; each axis by
@@ -66,13 +67,13 @@ def cell_of(pos, i, nc, inv):
                          nc[1])
 
 
-@numba.njit(cache=True, parallel=True)
+@cached(parallel=True)
 def cell_indices(pos, nc, inv, out):
     for i in numba.prange(pos.shape[1]):
         out[i] = cell_of(pos, i, nc, inv)
 
 
-@numba.njit(cache=True, parallel=True)
+@cached(parallel=True)
 def sort_cells(cell, hist, start):
     """Stable counting sort by cell, in parallel: ``start`` (ncells + 1) gets each cell's
     first slot and ``hist[t, c]`` the first slot of chunk ``t``'s particles in cell ``c``.
@@ -108,7 +109,7 @@ def sort_cells(cell, hist, start):
     start[ncells] = n
 
 
-@numba.njit(cache=True, parallel=True)
+@cached(parallel=True)
 def scatter_sorted(cell, hist, pos, head, spd, ids, pos2, head2, spd2, ids2):
     """Move every particle to its slot in cell order (``hist`` from :func:`sort_cells`)."""
     nt = hist.shape[0]
@@ -129,7 +130,7 @@ def scatter_sorted(cell, hist, pos, head, spd, ids, pos2, head2, spd2, ids2):
             ids2[s] = ids[i]
 
 
-@numba.njit(cache=True, inline="always")
+@cached(inline="always")
 def neighbour_row(g, n, length):
     """Row/plane ``g`` folded into ``0..n-1`` and the shift to add to a displacement."""
     if g < 0:
@@ -143,7 +144,7 @@ U1 = np.uint64(1)
 ALL = np.uint64(2**64 - 1)  # a `last` that masks nothing
 
 
-@numba.njit(cache=True, inline="always")
+@cached(inline="always")
 def copy_range(x, y, z, hx, hy, hz, tag, lo, hi, shx, shy, shz, buf, m, d):
     """Append slots ``lo..hi`` to the buffer at ``m``, periodic shifts applied (and, unless
     ``tag`` is None, ``tag[:, slot]`` into rows ``2d, 2d + 1, ...``); returns the new end. Unsigned indices
@@ -169,7 +170,7 @@ def copy_range(x, y, z, hx, hy, hz, tag, lo, hi, shx, shy, shz, buf, m, d):
     return np.int64(m)
 
 
-@numba.njit(cache=True, inline="always")
+@cached(inline="always")
 def neighbour_line(gy, gz, r, nc, box, d):
     """The ``r``-th of the 3 (3D: 9) lines around line ``(gy, gz)``: its first cell and
     the shifts (y, z) to its periodic image nearest that line."""
@@ -178,7 +179,7 @@ def neighbour_line(gy, gz, r, nc, box, d):
     return R.cell_number(0, hy, hz, nc[0], nc[1]), shy, shz
 
 
-@numba.njit(cache=True)
+@cached()
 def gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, rows, d):
     """Copy what the cells ``c0..c1-1`` of a line of cells need into ``buf``; returns how
     many entries it used, or -1 (nothing copied) if the buffer is too small.
@@ -228,7 +229,7 @@ def gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, row
     return m
 
 
-@numba.njit(cache=True, inline="always")
+@cached(inline="always")
 def gather_unit(u, nseg, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, out, d):
     """Unit ``u`` of the line kernels, segment ``u % nseg`` of line ``u // nseg`` (as
     :func:`work_units` counts them): its line, columns ``c0..c1-1`` and slots ``s0..s1-1``,
@@ -246,7 +247,7 @@ def gather_unit(u, nseg, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows,
     return line, c0, c1, s0, s1, buf, out
 
 
-@numba.njit(cache=True, inline="always")
+@cached(inline="always")
 def candidate_ranges(cx, nx, start, rows, ranges):
     """Where, in the buffer of :func:`gather_rows`, the candidates of column ``cx`` lie:
     one range per neighbouring line, into ``ranges``."""
@@ -256,7 +257,7 @@ def candidate_ranges(cx, nx, start, rows, ranges):
         ranges[r, 1] = rows[r, 2] if cx == nx - 1 else start[row0 + cx + 2] + delta
 
 
-@numba.njit(cache=True, inline="always")
+@cached(inline="always")
 def axis_cells(c, n):
     """First neighbour offset and number of distinct neighbour cells along an axis."""
     if n >= 3:
@@ -264,7 +265,7 @@ def axis_cells(c, n):
     return 0, n  # absolute cells 0..n-1, each once
 
 
-@numba.njit(cache=True)
+@cached()
 def work_units(nc, n, mode):
     """How many units of work a step is split into: segments of lines of cells for the
     fast metric kernel (mode 0), blocks of slots otherwise. Fixed by the model alone."""

@@ -22,10 +22,10 @@ obstacle adds :data:`OBSTACLE_COST` per particle.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from ..model import Model
+from ..rules import cached
 from ..rules import compile as compile_rules
 from . import cells
 from .features import features
@@ -91,7 +91,7 @@ def step_cost(model: Model, positions: np.ndarray, kernel: str) -> tuple[float, 
     return (n * particle + around * candidate) * 1e-9, around / max(n, 1)
 
 
-@numba.njit(cache=True)
+@cached(cells)
 def candidates(pos, nc, inv):
     """Sum over cells of ``n_c`` times the particles in the cells around ``c``, each
     neighbouring cell counted once (a grid of one or two cells a side has fewer);

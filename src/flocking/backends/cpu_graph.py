@@ -18,9 +18,13 @@ import functools
 import numba
 import numpy as np
 
-from ..rules import rebind
+from ..rules import rebind, source_digest
 from . import cells, cpu_kernels, delaunay, intrinsics, voronoi_cells
 from .features import Features
+
+#: the text compiled into the kernel from other files, in its name in numba's cache
+#: (:func:`flocking.rules.source_digest`)
+SOURCES = source_digest(cells, intrinsics, cpu_kernels, delaunay, voronoi_cells)
 
 # the flags and functions these read are bound per variant by kernel(), as in cpu_kernels
 EXTENDED = COUPLING = WEIGHTED = False
@@ -96,13 +100,14 @@ def graph_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, r
 @functools.lru_cache(maxsize=None)
 def build(features: Features, dim: int):
     """The ``graph`` kernel for ``features`` in ``dim`` dimensions (the ``search``
-    kernel's variant: :func:`cpu_kernels.variant`), cached on disk under a name of its own."""
+    kernel's variant: :func:`cpu_kernels.variant`), cached on disk under a name of its own and
+    :data:`SOURCES`."""
     features = cpu_kernels.variant(features, "search")
     namespace = dict(cpu_kernels.variant_namespace(features, dim))
     namespace["voronoi_sums"] = numba.njit(inline="always")(rebind(voronoi_sums, namespace))
     namespace["graph_blocks"] = numba.njit(inline="always")(rebind(graph_blocks, namespace))
     tag = cpu_kernels.cache_tag(features, dim)
-    return numba.njit(cache=True, parallel=True)(rebind(graph, namespace, f"graph_{tag}"))
+    return numba.njit(cache=True, parallel=True)(rebind(graph, namespace, f"graph_{tag}_{SOURCES}"))
 
 
 def kernel(features: Features, dim: int, box, walls):

@@ -46,14 +46,17 @@ import types
 import numba
 import numpy as np
 
+from ..rules import cached, rebind, source_digest, switch_bits
 from ..rules import compile as compile_rules
-from ..rules import rebind, switch_bits
 from . import cells, intrinsics
 from .cells import ALL, U1
 from .features import NEUTRAL, Features
 
 R = compile_rules("cpu")
 U0 = np.uint64(0)
+#: a digest of the text compiled into the kernels from other files (the rules, the cell
+#: sort, the intrinsics), in their names in numba's cache (:func:`flocking.rules.source_digest`)
+SOURCES = source_digest(cells, intrinsics)
 
 # The flags of a variant: what it compiles in (Features, each field in capitals), its
 # dimension and its rules: R with its switches, LANES without cohesion (which the lines
@@ -68,7 +71,7 @@ DIM = 2
 # -- the plain model's neighbour sums -----------------------------------------------------
 
 
-@numba.njit(cache=True, inline="always")
+@cached(cells, intrinsics, inline="always")
 def term_2d(buf, j, last, xi, yi, r2):
     """Candidate ``j``'s heading and 1 if ``j <= last`` and it is within ``R`` of
     ``(xi, yi)``, else zeros (multiplied by 0 or 1, not branched on)."""
@@ -78,7 +81,7 @@ def term_2d(buf, j, last, xi, yi, r2):
     return buf[2, j] * w, buf[3, j] * w, w
 
 
-@numba.njit(cache=True, inline="always")
+@cached(cells, intrinsics, inline="always")
 def term_3d(buf, j, last, xi, yi, zi, r2):
     dx = buf[0, j] - xi
     dy = buf[1, j] - yi
@@ -87,7 +90,7 @@ def term_3d(buf, j, last, xi, yi, zi, r2):
     return buf[3, j] * w, buf[4, j] * w, buf[5, j] * w, w
 
 
-@numba.njit(cache=True)
+@cached(cells, intrinsics)
 def reduce_2d(buf, ranges, x, y, i0, i1, r2, out, o):
     """For slots ``i0..i1``: the sum of the headings and the count of the candidates in
     ``ranges`` of the buffer within ``R`` (the particle itself included), into
@@ -115,7 +118,7 @@ def reduce_2d(buf, ranges, x, y, i0, i1, r2, out, o):
         out[2, o + i - i0] = (n0 + n1) + (n2 + n3)
 
 
-@numba.njit(cache=True)
+@cached(cells, intrinsics)
 def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
     """As :func:`reduce_2d`, in 3D."""
     for i in range(i0, i1):
@@ -153,7 +156,7 @@ def reduce_3d(buf, ranges, x, y, z, i0, i1, r2, out, o):
 COUNT = np.array([bin(m).count("1") for m in range(16)], dtype=np.uint64)
 
 
-@numba.njit(cache=True, inline="always")
+@cached(cells, intrinsics, inline="always")
 def note(near, k, row, v0, v1, v2, v3, w0, w1, w2, w3):
     """Write those of ``v0 .. v3`` whose count ``w`` is not 0 to ``near[row]`` from
     ``near[row, k]`` on, in order, then zeros (``near[row, k .. k + 3]`` are written
@@ -321,7 +324,7 @@ def wreduce_3d(buf, ranges, x, y, z, hx, hy, hz, tag, i0, i1, r2, pv, near, sums
             cohere(near, k, pv, sums, out, q)
 
 
-@numba.njit(cache=True, inline="always")
+@cached(cells, intrinsics, inline="always")
 def species(pid, bounds):
     """:func:`flocking.rules.physics.species_of` with as many species as ``bounds`` has
     ranges (the CPU kernels are not compiled per count of species)."""
@@ -718,10 +721,12 @@ def build(features: Features, dim: int) -> types.SimpleNamespace:
     with the variant's flags as globals (as :func:`flocking.rules.compile` binds the
     rules' constants): numba folds a branch on a global before it inlines what the branch
     calls, so code that a flag leaves out is never compiled, which keeps a variant's
-    compilation short. The kernels are cached on disk under a name of their own.
+    compilation short. The kernels are cached on disk under a name of their own and
+    :data:`SOURCES`.
     """
     namespace, tag = variant_namespace(features, dim), cache_tag(features, dim)
-    kernels = {name: numba.njit(cache=True, parallel=True)(rebind(globals()[name], namespace, f"{name}_{tag}"))
+    kernels = {name: numba.njit(cache=True, parallel=True)(rebind(globals()[name], namespace,
+                                                                  f"{name}_{tag}_{SOURCES}"))
                for name in ("lines", "search")}
     return types.SimpleNamespace(**kernels, features=features)
 

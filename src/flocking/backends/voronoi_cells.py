@@ -23,6 +23,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..rules import cached
 from ..rules import compile as compile_rules
 from . import cells, delaunay
 
@@ -32,7 +33,7 @@ R = compile_rules("cpu")
 MAX_SIDES = 48
 
 
-@numba.njit(cache=True, inline="always")
+@cached(cells, delaunay, inline="always")
 def cut(px, py, tag, m, qx, qy, qtag, ax, ay, j):
     """Cut the convex polygon ``px, py`` (``m`` vertices; side ``k`` from vertex ``k`` to
     ``k + 1`` made by ``tag[k]``) by ``a . x <= |a|^2 / 2``, the bisector of particle ``j``
@@ -55,7 +56,7 @@ def cut(px, py, tag, m, qx, qy, qtag, ax, ay, j):
     return out
 
 
-@numba.njit(cache=True)
+@cached(cells, delaunay)
 def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qtag, found):
     """Particle (slot) ``i``'s Voronoi neighbours into ``found``: returns their count, or
     -1 when the cell cannot be made here (see the module's docstring)."""
@@ -126,7 +127,7 @@ def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qta
     return count
 
 
-@numba.njit(cache=True, parallel=True)
+@cached(cells, delaunay, parallel=True)
 def all_cells(pos, start, nc, box, walls, tol, out, counts):
     """Every slot's neighbours into ``out[i, :counts[i]]`` (-1 in ``counts`` where the cell
     could not be made); in fixed blocks of slots, one thread a block."""
@@ -139,7 +140,7 @@ def all_cells(pos, start, nc, box, walls, tol, out, counts):
             counts[i] = cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qtag, out[i])
 
 
-@numba.njit(cache=True, parallel=True)
+@cached(cells, delaunay, parallel=True)
 def rows(out, counts):
     """The sorted lists ``out[i, :counts[i]]`` as compressed rows, and whether every pair
     is listed both ways (a side within rounding of ``TIE`` can be seen by one cell only)."""

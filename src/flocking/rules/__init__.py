@@ -15,7 +15,9 @@ have the target's float type:
   :mod:`flocking.backends.cuda_kernels`, whose float32 kernels then never promote.
 
 The result is a module object, so numba resolves ``R.wrap(...)`` inside a kernel to the
-compiled function (a plain namespace would not be typed). The reference backend is the
+compiled function (a plain namespace would not be typed). A CPU function that compiles the
+rules in and is cached on disk is made with :func:`cached`, whose cache name carries a
+digest of the rules' text. The reference backend is the
 deliberate exception: it transcribes docs/model.md in NumPy on its own, as the oracle
 these rules are tested against.
 
@@ -31,7 +33,9 @@ these rules are tested against.
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
+import sys
 import types
 
 import numba
@@ -63,6 +67,44 @@ def rebind(function, namespace: dict, qualname: str | None = None):
     out.__qualname__ = qualname or function.__qualname__
     out.__module__, out.__doc__ = function.__module__, function.__doc__
     return out
+
+
+def source_digest(*modules: types.ModuleType) -> str:
+    """A digest (12 hex digits) of the text of the rules' modules and of ``modules``.
+
+    numba knows a cached function's kernel is out of date only by the stamp of the file
+    that defines it, not by the files it compiles in: after a rule changed, a kernel
+    compiled before would still be loaded. A function named with this digest
+    (:func:`cached`) is looked up under a new name when any of that text changes, and
+    compiled again; the entries of earlier text stay in the cache, never loaded.
+
+    >>> from flocking.backends import cells
+    >>> len(source_digest()), source_digest(cells) != source_digest()
+    (12, True)
+    """
+    sha = hashlib.sha256()
+    for module in dict.fromkeys((*MODULES, sys.modules[__name__], *modules)):
+        with open(module.__file__, "rb") as f:
+            sha.update(f.read())
+    return sha.hexdigest()[:12]
+
+
+def cached(*modules: types.ModuleType, **options):
+    """``numba.njit(cache=True, **options)`` for a function that compiles in the rules and
+    the functions of ``modules`` (besides its own module's): cached under its name and
+    :func:`source_digest` of that text, so it is compiled again when any of it changes.
+
+    >>> from flocking.backends import cells
+    >>> cells.cell_indices.py_func.__qualname__ == "cell_indices_" + source_digest()
+    True
+    """
+    digest = source_digest(*modules)
+
+    def jit(function):
+        return numba.njit(cache=True, **options)(rebind(function, function.__globals__,
+                                                        f"{function.__qualname__}_{digest}"))
+
+    return jit
 
 
 def switch_constants(switches) -> dict[str, bool]:
