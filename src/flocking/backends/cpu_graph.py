@@ -68,7 +68,7 @@ def graph_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, r
     n = pos.shape[1]
     inv = nc / box
     nblocks = cells.work_units(nc, n, 1)
-    acc = np.zeros(partial.shape[1])
+    acc = np.zeros((partial.shape[1], 1))
     while True:
         b = intrinsics.fetch_add(counter)
         if b >= nblocks:
@@ -90,7 +90,7 @@ def graph_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, r
                 py += wy
                 pz += wz
         if EXTENDED:
-            partial[b, :] = acc
+            partial[b, :] = acc[:, 0]
         else:
             partial[b, 0] = px
             partial[b, 1] = py

@@ -472,24 +472,12 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
 
 
 def add_moments(acc, wx, wy, wz, pid, bounds):
-    """Slot's new heading into the moment sums ``acc``: its species' ``sum u``, then the
-    nematic products (:mod:`flocking.observables`)."""
-    d = DIM
-    o = species(pid, bounds) * d
-    acc[o] += wx
-    acc[o + 1] += wy
-    if d == 3:
-        acc[o + 2] += wz
-    o = (bounds.shape[0] - 1) * d
-    if NEMATIC and acc.shape[0] > o:  # a variant with nematic alignment runs models without it
-        if d == 2:
-            a, b = R.nematic_2d(wx, wy)
-            acc[o] += a
-            acc[o + 1] += b
-        else:
-            m = R.nematic_3d(wx, wy, wz)
-            for e in range(6):
-                acc[o + e] += m[e]
+    """Slot's new heading into the moment sums ``acc`` (one column):
+    :func:`flocking.rules.step.add_moments` with the species ``bounds`` gives (a variant
+    with nematic alignment compiled in runs models without it: their sums have no room for
+    the nematic products)."""
+    count = bounds.shape[0] - 1
+    R.add_moments(acc, 0, pid, bounds, count, DIM, NEMATIC and acc.shape[0] > count * DIM, wx, wy, wz)
 
 
 # -- the kernels --------------------------------------------------------------------------
@@ -539,7 +527,7 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     out = np.empty((4 if not COHESION else 12, 16))  # rows of the per-slot sums
     near = np.empty((d, buf.shape[1] + 4 if COHESION else 0))  # wreduce_*'s scratch: noted displacements
     sums = np.empty((2 * d + 1, near.shape[1] + 4))  # and cohesion's running sums
-    acc = np.zeros(partial.shape[1])
+    acc = np.zeros((partial.shape[1], 1))
     while True:
         # units go to whichever thread is free: balanced when particles cluster or
         # when another program holds a core; a unit's result never depends on who
@@ -599,7 +587,7 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
                 py += wy
                 pz += wz
         if EXTENDED:
-            partial[u, :] = acc
+            partial[u, :] = acc[:, 0]
         else:
             partial[u, 0] = px
             partial[u, 1] = py
@@ -628,7 +616,7 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
     bd = np.empty(max(k, 1))
     bi = np.empty(max(k, 1), dtype=np.int64)
     bs = np.empty(max(k, 1), dtype=np.int64)
-    acc = np.zeros(partial.shape[1])
+    acc = np.zeros((partial.shape[1], 1))
     while True:
         b = intrinsics.fetch_add(counter)
         if b >= nblocks:
@@ -658,7 +646,7 @@ def search_blocks(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, 
                     pz += wz
             c += 1
         if EXTENDED:
-            partial[b, :] = acc
+            partial[b, :] = acc[:, 0]
         else:
             partial[b, 0] = px
             partial[b, 1] = py

@@ -351,8 +351,8 @@ def block_sum(buf, tid):
 def gather(srt, new, P, cur, start, partial, bounds):
     """Slot ``s`` takes the particle the sort put there (``srt[s]`` holds the slot it
     came from); each cell's start is found by a binary search in the replica's sorted
-    records; each block's moment sums (float64) go to ``partial``: each species'
-    heading sum, then the nematic products (as :func:`flocking.observables.moment_sums`)."""
+    records; each block's moment sums (float64, :func:`flocking.rules.step.add_moments`)
+    go to ``partial``."""
     buf = cuda.shared.array((WIDTH, BLOCK), np.float64)
     p = P[0]
     n, ncells = p.n, p.cells
@@ -363,20 +363,12 @@ def gather(srt, new, P, cur, start, partial, bounds):
     if local < n:
         s = r * n + local  # here, not from slot_of: held over the loop above, 38-40 registers, not 32
         o = np.int64(srt[s] & LOW)
-        row = R.species_of(new.ids[o], bounds, NSPECIES) * DIM if NSPECIES > 1 else 0
         for a in range(DIM):
             cur.pos[a, s] = new.pos[a, o]
             cur.head[a, s] = new.head[a, o]
-            buf[row + a, tid] = np.float64(new.head[a, o])
-        if NEMATIC:
-            wx, wy = np.float64(new.head[0, o]), np.float64(new.head[1, o])
-            row = NSPECIES * DIM
-            if DIM == 2:
-                buf[row, tid], buf[row + 1, tid] = R.nematic_2d(wx, wy)
-            else:
-                m = R.nematic_3d(wx, wy, np.float64(new.head[2, o]))
-                for e in range(6):
-                    buf[row + e, tid] = m[e]
+        wz = np.float64(new.head[2, o]) if DIM == 3 else 0.0
+        R.add_moments(buf, tid, new.ids[o], bounds, NSPECIES, DIM, NEMATIC, np.float64(new.head[0, o]),
+                      np.float64(new.head[1, o]), wz)
         cur.ids[s] = new.ids[o]
         if p.speeds != 0:
             cur.spd[s] = new.spd[o]

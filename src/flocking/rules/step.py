@@ -5,7 +5,9 @@ The sums of a particle are one tuple of :data:`SUMS` (the others' weighed headin
 count, and with cohesion the pull, the push and the count inside the hard core): both
 kernels add candidates' terms into it with :func:`plus` and hand it to :func:`finish`. The
 ring ``ring[t % tau, row]`` holds :func:`width` of them (``row``: a particle's id, or its
-global id among replicas), written by :func:`keep` and read by :func:`recall`.
+global id among replicas), written by :func:`keep` and read by :func:`recall`. A new
+heading goes into the run's moment sums (its species' polar order, the nematic order) by
+:func:`add_moments`.
 
 >>> from flocking.rules import compile
 >>> R = compile("cpu")
@@ -17,7 +19,14 @@ global id among replicas), written by :func:`keep` and read by :func:`recall`.
 """
 
 from .geometry import fold, push_out_2d, push_out_3d, wrap
-from .physics import cohesive_sum, update_2d, update_3d
+from .physics import (
+    cohesive_sum,
+    nematic_2d,
+    nematic_3d,
+    species_of,
+    update_2d,
+    update_3d,
+)
 
 REAL = float
 ZERO = 0.0
@@ -29,9 +38,9 @@ SUMS = ("sx", "sy", "sz", "count", "pull_x", "pull_y", "pull_z", "push_x", "push
 SUM0 = (0.0,) * len(SUMS)
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("plus", "finish", "keep", "recall")
+RULES = ("plus", "finish", "keep", "recall", "add_moments")
 #: the rules numba inlines into their callers (:func:`flocking.rules.compile` says which)
-INLINED = ("finish", "keep", "recall")
+INLINED = ("finish", "keep", "recall", "add_moments")
 
 
 def plus(s, t):
@@ -77,6 +86,29 @@ def recall(ring, slot, row, dim, coh):
     return (x, y, z, total, ring[slot, row, o], ring[slot, row, o + 1], ring[slot, row, o + 2] if dim == 3 else ZERO,
             ring[slot, row, o + dim], ring[slot, row, o + dim + 1], ring[slot, row, o + dim + 2] if dim == 3 else ZERO,
             ring[slot, row, o + 2 * dim])
+
+
+def add_moments(acc, col, pid, bounds, count, dim, nematic, wx, wy, wz):
+    """Add a new heading ``w`` of particle ``pid`` to the moment sums in column ``col`` of
+    ``acc``, in the layout of :func:`flocking.observables.moment_sums`: rows ``dim s`` on
+    the heading sum of its species ``s`` (:func:`~flocking.rules.physics.species_of` with
+    ``count`` species and ``bounds``), then with ``nematic`` the nematic products
+    (:func:`~flocking.rules.physics.nematic_2d`, ``nematic_3d``) from row ``dim count``."""
+    row = species_of(pid, bounds, count) * dim if count > 1 else 0
+    acc[row, col] += wx
+    acc[row + 1, col] += wy
+    if dim == 3:
+        acc[row + 2, col] += wz
+    if nematic:
+        row = count * dim
+        if dim == 2:
+            a, b = nematic_2d(wx, wy)
+            acc[row, col] += a
+            acc[row + 1, col] += b
+        else:
+            m = nematic_3d(wx, wy, wz)
+            for e in range(6):
+                acc[row + e, col] += m[e]
 
 
 def finish(dim, ext, coh, ux, uy, uz, s, beta, values, vectorial, backward, seed, step, pid, field, ds, x, y, z,
