@@ -17,9 +17,9 @@ have the target's float type:
 The result is a module object, so numba resolves ``R.wrap(...)`` inside a kernel to the
 compiled function (a plain namespace would not be typed). A CPU function that compiles the
 rules in and is cached on disk is made with :func:`cached`, whose cache name carries a
-digest of the rules' text. The reference backend is the
-deliberate exception: it transcribes docs/model.md in NumPy on its own, as the oracle
-these rules are tested against.
+digest of the rules' text. The reference backend is the deliberate exception: it
+transcribes docs/model.md in NumPy on its own, as the oracle these rules are tested
+against.
 
 >>> import numba
 >>> R = compile("cpu")
