@@ -472,10 +472,10 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
 
 
 def add_moments(acc, wx, wy, wz, pid, bounds):
-    """Slot's new heading into the moment sums ``acc`` (one column):
-    :func:`flocking.rules.step.add_moments` with the species ``bounds`` gives (a variant
-    with nematic alignment compiled in runs models without it: their sums have no room for
-    the nematic products)."""
+    """Slot's new heading into the moment sums ``acc`` (one column) by
+    :func:`flocking.rules.step.add_moments`: its species from ``bounds``, and the nematic
+    products where ``acc`` has rows for them (a variant with nematic alignment compiled in
+    also runs models without it)."""
     count = bounds.shape[0] - 1
     R.add_moments(acc, 0, pid, bounds, count, DIM, NEMATIC and acc.shape[0] > count * DIM, wx, wy, wz)
 
