@@ -69,6 +69,7 @@ def rebind(function, namespace: dict, qualname: str | None = None):
     return out
 
 
+@functools.lru_cache(maxsize=None)
 def source_digest(*modules: types.ModuleType) -> str:
     """A digest (12 hex digits) of the text of the rules' modules and of ``modules``.
 
@@ -76,7 +77,8 @@ def source_digest(*modules: types.ModuleType) -> str:
     that defines it, not by the files it compiles in: after a rule changed, a kernel
     compiled before would still be loaded. A function named with this digest
     (:func:`cached`) is looked up under a new name when any of that text changes, and
-    compiled again; the entries of earlier text stay in the cache, never loaded.
+    compiled again; the entries of earlier text stay in the cache, never loaded. Read
+    once a process: a module's functions share their digest.
 
     >>> from flocking.backends import cells
     >>> len(source_digest()), source_digest(cells) != source_digest()
