@@ -113,8 +113,8 @@ def _steady_simulator() -> None:
 
     - The simulator runs the uint64 hash in NumPy scalars, which warn on the (intended)
       wrap-around of the multiplications: those warnings are ignored (the registry a first
-      warning would add to the rules' globals is there from the start,
-      :func:`flocking.rules.compile`: the simulator's threads may be iterating over them).
+      warning would add to a kernel's globals is there from the start,
+      :func:`flocking.rules.rebind`: the simulator's threads may be iterating over them).
     - It runs a block's threads as Python threads and finds a call site's shared array by
       a look-up then an insertion in a dict; a thread switched out between the two lets
       another allocate a second array, so under load two threads of a block could see

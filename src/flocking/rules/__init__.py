@@ -61,7 +61,14 @@ def rebind(function, namespace: dict, qualname: str | None = None):
     qualified name, under which numba caches it, is ``qualname``): how a function is
     compiled with other values of the names it reads (here the float type's constants; the
     kernels' flags in :mod:`flocking.backends.cpu_kernels` and
-    :mod:`flocking.backends.cuda_kernels`)."""
+    :mod:`flocking.backends.cuda_kernels`).
+
+    ``namespace`` gets the registry a first warning would add to it (``__warningregistry__``)
+    beforehand: numba's CUDA simulator iterates over a device function's globals at each
+    call while the block's other threads run, and a warning in one of them (an overflow of
+    the hash's multiplications, of a huge coordinate's square) adding the key stopped the
+    run ("dictionary changed size during iteration")."""
+    namespace.setdefault("__warningregistry__", {})
     out = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__,
                              function.__closure__)
     out.__qualname__ = qualname or function.__qualname__
@@ -163,9 +170,6 @@ def compile(target: str = "cpu", real=np.float64, switches=None) -> types.Module
         bound.update(switch_constants(switches))
     for module in MODULES:
         namespace = dict(vars(module))
-        # a warning adds a registry to its globals: made beforehand, because numba's CUDA
-        # simulator iterates over a device function's globals while other threads run
-        namespace["__warningregistry__"] = {}
         namespace.update(bound)
         namespace.update(built)
         for name in module.RULES:
