@@ -100,8 +100,9 @@ def assert_same_state(a, b, model, tol=1e-12):
 #: tests (CI's second stage, .ci/run). The default suite keeps every 2D case whose kernel is
 #: ``lines`` and the first case of each other kernel (``search`` with pair weights, 3D).
 DEFAULT_OTHERS = {("walls", 3), ("topological", 2), ("box-below-3R", 2), ("topological-delay-nematic", 2)}
-#: ... but for this 2D ``lines`` case: cohesion with pair weights is a kernel no other default test needs
-SLOW_LINES = {("cohesion-everything", 2)}
+#: ... but for these 2D ``lines`` cases, kernels no other default test needs: cohesion with
+#: pair weights, and a cone with nematic alignment (30 to 40 s of compiling each)
+SLOW_LINES = {("cohesion-everything", 2), ("all-with-delay", 2)}
 
 
 def every_case():
@@ -132,19 +133,22 @@ def test_cpu_matches_reference_step_by_step(dim, name):
             cpu = CPUBackend(model, ref.state)
 
 
-WEIGHTS = dict(species=[{"fraction": 0.5}, {"fraction": 0.5}], coupling=[[1.0, -1.0], [0.5, 1.0]], vision=2.5,
-               alignment_rule="nematic")
+#: pair weights a unit's buffer holds rows for (the coupling) or reads per pair (the cone):
+#: the kernel of the ``three-species`` case
+WEIGHTS = dict(species=[{"fraction": 0.5}, {"fraction": 0.5}], coupling=[[1.0, -1.0], [0.5, 1.0]], vision=2.5)
 
 
 @pytest.mark.parametrize(("dim", "extra"), [
     (2, WEIGHTS), (2, dict(cohesion=0.5)), (3, {}),
-    pytest.param(2, dict(WEIGHTS, cohesion=0.5), marks=pytest.mark.slow),  # a kernel of its own: see SLOW_LINES
+    # every weight with cohesion, the kernel of cohesion-everything (see SLOW_LINES)
+    pytest.param(2, dict(WEIGHTS, alignment_rule="nematic", cohesion=0.5), marks=pytest.mark.slow),
 ], ids=["2-weights", "2-cohesion", "3", "2-weights-cohesion"])
 def test_crowded_cells_by_a_wall_grow_the_buffer_and_match_reference(dim, extra):
     """Thousands of particles in one corner by the walls: the line kernel's candidate
     buffer (4096 entries to start with) must grow, no neighbour is seen across a wall, and
-    every sum matches, with pair weights (coupling, cone, nematic), with cohesion (its list
-    of the candidates that count grows with the buffer), with both, and without."""
+    every sum matches, with pair weights (coupling, cone; nematic too with cohesion), with
+    cohesion (its list of the candidates that count grows with the buffer), with both, and
+    without."""
     options = dict(boundary="wall", **extra)
     model = make(dim, options).replace(n=5000, box=10.0 if dim == 2 else 5.0)
     state = State.random(model)
@@ -380,6 +384,7 @@ def group_accuracy(fraction, seed):
     return mean[1] / np.linalg.norm(mean)
 
 
+@pytest.mark.slow  # 44 runs of 300 steps (17 s); the informed case's step is checked above
 def test_informed_individuals_steer_the_group_more_accurately_as_their_fraction_grows():
     seeds = range(6)
     accuracy = {f: np.mean([group_accuracy(f, s) for s in seeds]) for f in (0.05, 0.3)}

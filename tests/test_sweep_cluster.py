@@ -246,6 +246,9 @@ def serial_results(tmp_path):
     return open_results(str(tmp_path / "serial")).drop_vars("elapsed")
 
 
+#: the two tests below start a scheduler and workers apart and run the sweep twice (on Dask
+#: and serially): 20 to 30 s each on 2 cores, in the slow stage
+@pytest.mark.slow
 def test_a_scheduler_and_workers_started_apart_survive_a_killed_worker(tmp_path):
     """One worker process is killed once the first points are stored: its nanny restarts
     it, Dask runs its task again, and the results are those of a serial sweep, bit for bit."""
@@ -279,6 +282,7 @@ def test_a_scheduler_and_workers_started_apart_survive_a_killed_worker(tmp_path)
 LOST = ("FutureCancelledError", "CommClosedError", "OSError", "TimeoutError")
 
 
+@pytest.mark.slow
 def test_a_scheduler_that_dies_loses_no_finished_run(tmp_path):
     """The scheduler is killed once the first points are stored: the sweep ends (exit 1)
     with one line per unfinished run, each recorded as failed; the finished ones are kept,

@@ -231,9 +231,9 @@ STEPS = {
 }
 
 
-#: a variant compiled for this case alone (72 s of the default suite's cold start): in the
-#: slow stage; cohesion with Voronoi neighbours stays in the default one (the species case)
-SLOW_STEPS = {"walls-vision-cohesion-delay"}
+#: cases whose ``graph`` kernel no test of the default suite needs otherwise (compiled for
+#: the case alone: 20 to 72 s of the default suite's 2 cores): in the slow stage
+SLOW_STEPS = {"walls-vision-cohesion-delay", "species-nematic-chirality-field-obstacle", "plain-3d"}
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_STEPS else n for n in STEPS])
@@ -261,17 +261,17 @@ THREADS_SCRIPT = """
 import sys
 import numpy as np
 from flocking import Model, Simulation
-out = []
-for kw in (dict(dim=2, n=3000), dict(dim=2, n=600, boundary="wall", vision=2.0, cohesion=0.5)):
-    sim = Simulation(Model(neighbours="voronoi", density=2.0, seed=4, noise=0.6, **kw))
-    sim.run(5)
-    out.append(np.concatenate([sim.state.positions.ravel(), sim.state.headings.ravel(), sim.polar_order]))
-np.save(sys.argv[1], np.concatenate(out))
+sim = Simulation(Model(neighbours="voronoi", density=2.0, seed=4, noise=0.6, **{kw}))
+sim.run(5)
+np.save(sys.argv[1], np.concatenate([sim.state.positions.ravel(), sim.state.headings.ravel(), sim.polar_order]))
 """
 
 
-def test_bitwise_identical_for_any_thread_count(tmp_path):
-    results = results_by_threads(THREADS_SCRIPT, tmp_path)
+#: the plain model, and (slow stage: a kernel of its own) walls, a cone and cohesion
+@pytest.mark.parametrize("kw", [dict(dim=2, n=3000), pytest.param(
+    dict(dim=2, n=600, boundary="wall", vision=2.0, cohesion=0.5), marks=pytest.mark.slow)], ids=["plain", "extended"])
+def test_bitwise_identical_for_any_thread_count(tmp_path, kw):
+    results = results_by_threads(THREADS_SCRIPT.replace("{kw}", repr(kw)), tmp_path)
     assert np.array_equal(results[0], results[1])
 
 

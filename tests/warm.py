@@ -35,10 +35,8 @@ MODELS = [
     (46, dict(n=50, box=6.0, cohesion=0.5)),  # lines_2d_10001
     (34, dict(n=50, box=6.0, vision=2.0)),  # lines_2d_10010
     (29, dict(n=50, box=6.0, alignment_rule="nematic")),  # lines_2d_10100
-    (29, dict(n=50, box=6.0, vision=2.0, alignment_rule="nematic")),  # lines_2d_10110
     (36, dict(n=50, box=6.0, **COUPLED)),  # lines_2d_11000
     (36, dict(n=50, box=6.0, vision=2.0, **COUPLED)),  # lines_2d_11010
-    (38, dict(n=50, box=6.0, vision=2.0, alignment_rule="nematic", **COUPLED)),  # lines_2d_11110
     (25, dict(n=50, box=6.0, dim=3)),  # lines_3d_00000
     (27, dict(n=50, box=6.0, dim=3, boundary="wall")),  # lines_3d_10000
     (39, dict(n=50, box=6.0, neighbours="topological")),  # search_2d_00000
