@@ -24,7 +24,7 @@ def long_files(root: pathlib.Path) -> dict[str, int]:
     """Each ``.py`` file below ``root`` longer than :data:`MAX_FILE` lines, with its length."""
     found = {}
     for path in sorted(root.rglob("*.py")):
-        lines = len(path.read_text().splitlines())
+        lines = len(path.read_text(encoding="utf-8").splitlines())
         if lines > MAX_FILE:
             found[str(path.relative_to(root))] = lines
     return found
@@ -36,7 +36,7 @@ def long_functions(root: pathlib.Path, folders=SHORT) -> dict[str, int]:
     found = {}
     for folder in folders:
         for path in sorted((root / folder).rglob("*.py")):
-            for node in ast.walk(ast.parse(path.read_text())):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
                 if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                     lines = node.end_lineno - node.lineno + 1
                     if lines > MAX_FUNCTION:
