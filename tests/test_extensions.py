@@ -150,10 +150,10 @@ def test_crowded_cells_by_a_wall_grow_the_buffer_and_match_reference(dim, extra)
     cohesion (its list of the candidates that count grows with the buffer), with both, and
     without."""
     options = dict(boundary="wall", **extra)
-    model = make(dim, options).replace(n=5000, box=10.0 if dim == 2 else 5.0)
+    model = make(dim, options).replace(n=4700, box=10.0 if dim == 2 else 5.0)
     state = State.random(model)
-    state.positions[:4500] = np.random.default_rng(1).uniform(0.0, 0.9, size=(4500, dim))
-    state.positions[4500:4600] = model.box[0] - np.random.default_rng(2).uniform(0.0, 0.5, size=(100, dim))
+    state.positions[:4400] = np.random.default_rng(1).uniform(0.0, 0.9, size=(4400, dim))
+    state.positions[4400:4500] = model.box[0] - np.random.default_rng(2).uniform(0.0, 0.5, size=(100, dim))
     cpu, ref = CPUBackend(model, state), ReferenceBackend(model, state)
     np.testing.assert_allclose(cpu.advance(1), ref.advance(1), rtol=0, atol=1e-12)
     np.testing.assert_allclose(cpu.moments, ref.moments, rtol=0, atol=1e-9)
