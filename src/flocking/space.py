@@ -171,14 +171,27 @@ class Space:
         return np.where(self.periodic, x, np.clip(x, origin, origin + self.lengths))
 
     def in_obstacle(self, points: Sequence) -> np.ndarray:
-        """Whether each point lies strictly inside an obstacle: its squared distance to
-        the centre (nearest image) below the radius squared."""
+        """Whether each point lies strictly inside an obstacle (any of :meth:`inside_each`)."""
         x = np.asarray(points, dtype=np.float64)
-        inside = np.zeros(x.shape[:-1], dtype=bool)
-        for row in self.obstacles:
-            d = self.displacement(np.asarray(row[:-1]), x)
-            inside |= np.sum(d * d, axis=-1) < row[-1] * row[-1]
-        return inside
+        return self.inside_each(x).any(axis=0) if self.obstacles else np.zeros(x.shape[:-1], dtype=bool)
+
+    def inside_each(self, points: Sequence) -> np.ndarray:
+        """Whether each point lies strictly inside each obstacle, ``(obstacles, *points)``:
+        its squared distance to the centre (nearest image) below the radius squared.
+
+        >>> space = Space((10.0, 10.0), obstacles=[(5.0, 5.0, 2.0), (0.5, 0.5, 1.0)])
+        >>> space.inside_each([[6.0, 5.0], [9.8, 9.8], [7.0, 5.0]]).tolist()
+        [[True, False, False], [False, True, False]]
+        """
+        x = np.asarray(points, dtype=np.float64)
+        out = np.zeros((len(self.obstacles), *x.shape[:-1]), dtype=bool)
+        for k, row in enumerate(self.obstacles):
+            out[k] = self._inside(row, x)
+        return out
+
+    def _inside(self, row: Sequence[float], x: np.ndarray) -> np.ndarray:
+        d = self.displacement(np.asarray(row[:-1]), x)
+        return np.sum(d * d, axis=-1) < row[-1] * row[-1]
 
     def obstacle_images(self) -> np.ndarray:
         """Every obstacle and each of its periodic images that reaches into the box, rows
@@ -222,13 +235,12 @@ class Space:
         moved = 0
         for row in self.obstacles:
             centre, radius = np.asarray(row[:-1]), row[-1]
-            r = self.displacement(centre, points)
-            dist = np.sqrt(np.einsum("ij,ij->i", r, r))
-            inside = np.flatnonzero(dist < radius)
+            inside = np.flatnonzero(self._inside(row, points))
             if not inside.size:
                 continue
-            u, dist = headings[inside], dist[inside, None]
-            normal = np.where(dist > 0.0, r[inside] / np.where(dist > 0.0, dist, 1.0), -u)
+            r = self.displacement(centre, points[inside])
+            u, dist = headings[inside], np.sqrt(np.einsum("ij,ij->i", r, r))[:, None]
+            normal = np.where(dist > 0.0, r / np.where(dist > 0.0, dist, 1.0), -u)
             points[inside] = self.wrap(centre + (radius + margin) * normal)
             dot = np.einsum("ij,ij->i", u, normal)[:, None]
             headings[inside] = np.where(dot < 0.0, u - 2.0 * dot * normal, u)

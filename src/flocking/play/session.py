@@ -400,10 +400,9 @@ class Session:
             raise ProtocolError(f"obstacle.at: must be {target.dim} numbers, a point in the box (got {at!r})"[:300])
         at = tuple(float(x) for x in at)
         obstacles = list(target.obstacles)
-        space = Space.of(target)
-        hit = next((i for i, ob in enumerate(obstacles) if space.distance(at, ob.centre) <= ob.radius), None)
-        if hit is not None:
-            del obstacles[hit]
+        hits = np.flatnonzero(Space.of(target).inside_each([at])[:, 0])
+        if hits.size:
+            del obstacles[hits[0]]
         else:
             obstacles.append(Obstacle(at, msg["radius"]))
         self._want_state = True
