@@ -50,6 +50,7 @@ import numpy as np
 
 from ..model import Model, ParameterError
 from ..observables import moment_width
+from ..space import Space
 from ..state import State, frame_arrays
 from . import cuda_init
 from .cells import cell_grid
@@ -557,10 +558,11 @@ def geometry_record(model: Model, real, replicas: int = 1, rows: int = 1, speeds
                   speeds=int(speeds), rows=rows, obstacles=len(model.obstacles),
                   w0=int(walls3[0]), w1=int(walls3[1]), w2=int(walls3[2]),
                   r2=model.radius**2, width=float(np.min(box / nc)), dt=model.dt)
+    half3 = list(Space.of(model).half) + [0.5] * (3 - d)
     for a in range(3):
         values[f"inv{a}"] = nc3[a] / box3[a]
         values[f"l{a}"] = box3[a]
-        values[f"h{a}"] = np.inf if walls3[a] else box3[a] / 2.0
+        values[f"h{a}"] = half3[a]
         values[f"s{a}"] = 2.0 * box3[a] if walls3[a] else box3[a]
     dtype = geometry_dtype(real)
     record = np.zeros(1, dtype=dtype)

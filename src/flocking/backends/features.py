@@ -25,6 +25,7 @@ import typing
 import numpy as np
 
 from ..model import Model
+from ..rules import step as ring_layout
 from ..rules import switch_constants
 from ..rules.physics import PAIR
 from ..space import Space
@@ -73,7 +74,7 @@ def ring_width(dim: int, features: Features) -> int:
     >>> ring_width(2, Features()), ring_width(3, Features(extended=True, cohesion=True))
     (3, 11)
     """
-    return dim + 1 + (2 * dim + 1 if features.cohesion else 0)
+    return ring_layout.width(dim, features.cohesion)
 
 
 def features(model: Model) -> Features:

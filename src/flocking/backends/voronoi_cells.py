@@ -65,8 +65,10 @@ def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qta
     step = min(hx, hy)
     c0 = cells.cell_of(pos, i, nc, nc / box)  # the cell the sort put it in
     gx, gy, _ = R.cell_coords(c0, nc[0], nc[1])
-    lo_x, hi_x = (-xi, box[0] - xi) if walls[0] else (-0.5 * box[0], 0.5 * box[0])
-    lo_y, hi_y = (-yi, box[1] - yi) if walls[1] else (-0.5 * box[1], 0.5 * box[1])
+    half_x = np.inf if walls[0] else 0.5 * box[0]  # the minimum image's reach (none across walls)
+    half_y = np.inf if walls[1] else 0.5 * box[1]
+    lo_x, hi_x = (-xi, box[0] - xi) if walls[0] else (-half_x, half_x)
+    lo_y, hi_y = (-yi, box[1] - yi) if walls[1] else (-half_y, half_y)
     px[0], py[0], px[1], py[1] = lo_x, lo_y, hi_x, lo_y
     px[2], py[2], px[3], py[3] = hi_x, hi_y, lo_x, hi_y
     tag[0] = tag[1] = tag[2] = tag[3] = -1
@@ -88,16 +90,14 @@ def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qta
                 cx = gx + ox
                 if walls[0] and (cx < 0 or cx >= nc[0]):
                     continue
-                c = cy * nc[0] + cx % nc[0]
+                c = R.cell_number(cx % nc[0], cy, 0, nc[0], nc[1])
                 for j in range(start[c], start[c + 1]):
                     if j == i:
                         continue
                     ax = pos[0, j] - xi
                     ay = pos[1, j] - yi
-                    if not walls[0]:
-                        ax -= box[0] * np.rint(ax / box[0])
-                    if not walls[1]:
-                        ay -= box[1] * np.rint(ay / box[1])
+                    ax = R.minimum_image(ax, box[0], half_x)
+                    ay = R.minimum_image(ay, box[1], half_y)
                     d2 = ax * ax + ay * ay
                     if d2 == 0.0:
                         return -1  # coincident: the triangulation's rule
