@@ -907,6 +907,30 @@ def test_obstacles_that_clash_with_walls_or_each_other_are_refused_in_one_line()
     assert errors and errors[0].startswith("obstacles: must be radii above one step, speed * dt = 3.5")
 
 
+def test_the_page_gets_each_obstacle_with_its_images_and_a_click_inside_removes_it():
+    """The state names every disc the page draws, the rows of Space.obstacle_images: an
+    obstacle at (1, 7) of radius 1.5 in a periodic box of 14.14 also shows past the
+    opposite side, at x = 15.14. A click strictly inside an obstacle (here on its image)
+    removes it; one on the rim does not (it tries to drop a second there, which overlaps).
+    With walls across x, an image shows only across y."""
+    s = ext_session()
+    side = EXT.box[0]
+    errors, state = answers(s, {"type": "obstacle", "at": [1.0, 7.0], "radius": 1.5})
+    assert errors == []
+    np.testing.assert_allclose(state["obstacle_images"], [[1.0, 7.0, 1.5], [1.0 + side, 7.0, 1.5]])
+    errors, state = answers(s, {"type": "obstacle", "at": [7.0, 7.0], "radius": 2.0})
+    assert errors == [] and len(state["obstacle_images"]) == 3
+    errors, state = answers(s, {"type": "obstacle", "at": [14.0, 7.0], "radius": 0.6})  # inside the image
+    assert errors == [] and [o.centre for o in s.model.obstacles] == [(7.0, 7.0)]
+    assert state["obstacle_images"] == [[7.0, 7.0, 2.0]]
+    errors, _ = answers(s, {"type": "obstacle", "at": [9.0, 7.0], "radius": 0.6})  # on the rim
+    assert errors and errors[0].startswith("obstacles: obstacles 0 and 1 overlap") and len(s.model.obstacles) == 1
+    assert answers(s, {"type": "set", "params": {"boundary": "wall,periodic"}})[0] == []
+    errors, state = answers(s, {"type": "obstacle", "at": [12.0, 1.0], "radius": 1.2})
+    assert errors == []
+    np.testing.assert_allclose(state["obstacle_images"], [[7.0, 7.0, 2.0], [12.0, 1.0, 1.2], [12.0, 1.0 + side, 1.2]])
+
+
 def test_more_than_the_obstacle_limit_is_refused():
     s = ext_session(Model(n=400, box=[200.0, 8.0], noise=0.5))
     for i in range(session_module.MAX_OBSTACLES):

@@ -352,6 +352,8 @@ class Session:
         return {"type": "state", "model": {**self.model.to_dict(), "density": self.model.density},
                 "running": self.running, "steps_per_frame": self.steps_per_frame, "init": self.init,
                 "species_counts": list(self.model.species_counts),
+                # what the page draws: each obstacle and its periodic images that reach into the box
+                "obstacle_images": Space.of(self.model).obstacle_images().tolist(),
                 "limits": {"n": MAX_N, "k": MAX_K, "delay": MAX_DELAY,
                            "steps_per_frame": MAX_STEPS_PER_FRAME, "obstacles": MAX_OBSTACLES}}
 

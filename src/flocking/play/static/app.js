@@ -292,7 +292,8 @@ function syncExtensions(reply) {
   const sight = [vision < Math.PI ? `${Math.round((vision * 180) / Math.PI)}°` : "", m.chirality ? `ω ${m.chirality}` : "",
                  m.cohesion ? `β ${m.cohesion}` : ""];
   $("sight-state").textContent = sight.filter(Boolean).join(" · ") || "all round";
-  renderer.scene = { walls, obstacles, counts: two ? reply.species_counts : null };
+  const discs = (reply.obstacle_images || []).map((row) => ({ centre: row.slice(0, -1), radius: row[row.length - 1] }));
+  renderer.scene = { walls, obstacles: discs, counts: two ? reply.species_counts : null };
   $("legend").classList.toggle("hidden", !two);
   document.querySelector(".wheel").classList.toggle("hidden", two);
   flockCanvas.classList.toggle("drop", !three);

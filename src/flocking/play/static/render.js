@@ -41,7 +41,7 @@ export class Renderer {
     this.pitch = 0.45;
     this.image = null;
     this.order = null;
-    // walls per axis, obstacles ({centre, radius}) and species counts, from the server's state
+    // walls per axis, obstacles and their periodic images ({centre, radius}) and species counts, from the server's state
     this.scene = { walls: [], obstacles: [], counts: null };
   }
 
@@ -127,7 +127,7 @@ export class Renderer {
     this.scenery2d(frame);
   }
 
-  // obstacles as discs (with their images across periodic sides), walls as bright lines
+  // obstacles as discs (each image the server's Space sends, across periodic sides too), walls as bright lines
   scenery2d(frame) {
     const { ctx } = this;
     const { lx, ly, scale, x0, y0 } = this.layout2d(frame);
@@ -140,16 +140,11 @@ export class Renderer {
     ctx.fillStyle = OBSTACLE;
     ctx.strokeStyle = OBSTACLE_EDGE;
     ctx.lineWidth = 1.5 * dpr;
-    const shifts = (wall, length) => (wall ? [0] : [-length, 0, length]);
     for (const { centre, radius } of obstacles) {
-      for (const dx of shifts(walls[0], lx)) {
-        for (const dy of shifts(walls[1], ly)) {
-          ctx.beginPath();
-          ctx.arc(x0 + (centre[0] + dx) * scale, y0 - (centre[1] + dy) * scale, radius * scale, 0, 2 * Math.PI);
-          ctx.fill();
-          ctx.stroke();
-        }
-      }
+      ctx.beginPath();
+      ctx.arc(x0 + centre[0] * scale, y0 - centre[1] * scale, radius * scale, 0, 2 * Math.PI);
+      ctx.fill();
+      ctx.stroke();
     }
     ctx.restore();
     ctx.strokeStyle = WALL;
