@@ -269,11 +269,11 @@ class Engine:
     def _load(self, states: list[State], memories: Sequence[dict | None]) -> None:
         """Upload the states (id order) into the ``new_*`` buffers, then sort them in."""
         real, n, d = self._real, self.n, self.dim
-        box = _periodic_box(self.models[0])
+        box = cuda_init.fold_lengths(self.models[0], real)[:d].astype(real)
         pos, head = np.empty((d, self.replicas * n), real), np.empty((d, self.replicas * n), real)
         for r, s in enumerate(states):
             p = s.positions.astype(real)
-            p = np.where(p >= box.astype(real), p - box.astype(real), p)  # rounding may reach L (not at a wall)
+            p = np.where(p >= box, p - box, p)  # rounding may reach L (not at a wall)
             pos[:, r * n:(r + 1) * n] = p.T
             head[:, r * n:(r + 1) * n] = s.headings.T
         self._new.pos.copy_to_device(pos)
@@ -452,7 +452,7 @@ class Engine:
         brought over in pieces of :data:`COPY_CHUNK` particles straight into its place:
         the host holds the states and one piece, never a second array of N."""
         n, d = self.n, self.dim
-        box = _periodic_box(self.models[0])
+        box = cuda_init.fold_lengths(self.models[0], np.float64)[:d]
         cur = self._cur
         out = []
         for r, model in enumerate(self.models):
@@ -532,12 +532,6 @@ def radix_sort(records: np.ndarray, key_bits: int = 31, launch: Launch | None = 
     clock = cuda.to_device(np.array([0, 1], dtype=np.int64))
     return cuda_sort.radix(k, rec, rec2, m, cuda_sort.passes(key_bits, launch.bits), hist, status, tiles, clock,
                            False).copy_to_host()
-
-
-def _periodic_box(model: Model) -> np.ndarray:
-    """The box lengths along periodic axes, infinity along walls: a coordinate at or
-    above it is folded back by ``L`` (a coordinate may be exactly ``L`` at a wall)."""
-    return np.where(np.asarray(model.walls), np.inf, np.asarray(model.box, dtype=np.float64))
 
 
 def geometry_record(model: Model, real, replicas: int = 1, rows: int = 1, speeds: bool = False) -> np.ndarray:

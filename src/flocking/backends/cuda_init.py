@@ -126,8 +126,14 @@ def zeros(shape, dtype):
 
 
 def fold_lengths(model, real) -> np.ndarray:
-    """Per axis (3 entries) the length a coordinate at or above which the upload folds
-    back: ``L`` in the run's precision along periodic axes, infinity along walls."""
+    """Per axis (3 entries) the length a coordinate at or above which is folded back by
+    it (rounding may reach it; a coordinate may be exactly ``L`` at a wall): ``L`` in the
+    precision ``real`` along periodic axes, infinity along walls; float64 values.
+
+    >>> from flocking import Model
+    >>> fold_lengths(Model(n=10, box=(2.1, 2.0), boundary="periodic,wall"), np.float32).tolist()
+    [2.0999999046325684, inf, inf]
+    """
     out = np.full(3, np.inf)
     for a, (length, wall) in enumerate(zip(model.box, model.walls)):
         if not wall:
