@@ -217,10 +217,19 @@ def test_a_click_drops_an_obstacle_that_is_drawn_and_a_second_click_removes_it(p
     disc = [round(15 + 0.92 * 77), round(20 + 0.92 * 82), round(32 + 0.92 * 92)]
     for dx in (0.0, 0.8 * 3 / side, -0.8 * 3 / side):
         assert pixel(page, 0.5 + dx, 0.25) == pytest.approx(disc, abs=2)
+    # one dropped by the left side shows across the right one too: its periodic image
+    page.mouse.click(box["x"] + 0.03 * box["width"], box["y"] + 0.75 * box["height"])
+    page.wait_for_function("flockPlay.model.obstacles.length === 2")
+    page.wait_for_timeout(300)
+    for x in (0.03, 0.97):
+        assert pixel(page, x, 0.75) == pytest.approx(disc, abs=2)
+    page.mouse.click(box["x"] + 0.97 * box["width"], box["y"] + 0.75 * box["height"])  # on its image: removed
+    page.wait_for_function("flockPlay.model.obstacles.length === 1")
     page.mouse.click(box["x"] + 0.52 * box["width"], box["y"] + 0.27 * box["height"])  # on it: removed
     page.wait_for_function("!flockPlay.model.obstacles")
     page.wait_for_timeout(300)
-    assert pixel(page, 0.5, 0.25) == [15, 20, 32]  # the background again: the flock stayed paused
+    for x, y in ((0.5, 0.25), (0.03, 0.75), (0.97, 0.75)):
+        assert pixel(page, x, y) == [15, 20, 32]  # the background again: the flock stayed paused
     assert page.inner_text("#space-state") == "none"
 
 
