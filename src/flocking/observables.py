@@ -59,6 +59,17 @@ def sums_width(dim: int, species: int, nematic: bool) -> int:
     return dim * species + ((2 if dim == 2 else 6) if nematic else 0)
 
 
+def heading_total(sums: np.ndarray, dim: int, species: int) -> np.ndarray:
+    """The sum of every heading, ``(..., dim)``, from moment sums ``(..., width)`` in the
+    layout of :func:`sums_width`: the species' sums added in species order.
+
+    >>> heading_total(np.array([1.0, 2.0, 3.0, 4.0, 0.5, 0.5]), 2, 2).tolist()
+    [4.0, 6.0]
+    """
+    sums = np.asarray(sums)
+    return sums[..., : dim * species].reshape(*sums.shape[:-1], species, dim).sum(axis=-2)
+
+
 def moment_sums(model, headings: np.ndarray) -> np.ndarray:
     """The moment sums of unit ``headings`` (id order): per species ``sum u``, then
     ``sum (ux^2 - uy^2), sum 2 ux uy`` (2D) or ``sum u_a u_b`` for xx, yy, zz, xy, xz, yz (3D)."""

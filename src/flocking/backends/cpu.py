@@ -51,7 +51,7 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..model import Model, ParameterError  # noqa: E402
-from ..observables import moment_width  # noqa: E402
+from ..observables import heading_total, moment_width  # noqa: E402
 from ..state import State  # noqa: E402
 from . import cells, cpu_cost, cpu_kernels, frames  # noqa: E402
 from .features import features, ring_width, step, tables  # noqa: E402
@@ -276,7 +276,7 @@ class CPUBackend:
             self._step_count += 1
             if self.model.extended:
                 moments[t] = self._partial.sum(axis=0)
-                total = moments[t, : d * species].reshape(species, d).sum(axis=0)
+                total = heading_total(moments[t], d, species)
             else:
                 total = self._partial.sum(axis=0) if n else np.zeros(3)
                 moments[t] = total[:d]

@@ -49,7 +49,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..model import Model, ParameterError
-from ..observables import moment_width
+from ..observables import heading_total, moment_width
 from ..space import Space
 from ..state import State, frame_arrays
 from . import cuda_init
@@ -311,8 +311,7 @@ class Engine:
         _, reduce = cuda_init.build(self.precision, self.dim)
         out = self._cuda.device_array((self.replicas, self._width), np.float64)
         reduce[self.replicas, max(32, self._width)](self._partial, self._qb, out)
-        sums = out.copy_to_host()[:, : self.dim * self._species].reshape(self.replicas, self._species, self.dim)
-        total = sums.sum(axis=1)
+        total = heading_total(out.copy_to_host(), self.dim, self._species)
         return np.sqrt(np.sum(total * total, axis=1)) / max(self.n, 1)
 
     def _load_ring(self, memories: Sequence[dict | None]) -> None:
@@ -426,7 +425,7 @@ class Engine:
             rows = (self._step_count + 1 + np.arange(chunk)) % self._rows
             sums = self._phi.copy_to_host()[:, rows]
             self.moments[:, done:done + chunk] = sums
-            total = sums[..., :d * self._species].reshape(self.replicas, chunk, self._species, d).sum(axis=2)
+            total = heading_total(sums, d, self._species)
             out[:, done:done + chunk] = np.sqrt(np.sum(total * total, axis=2)) / self.n
             self._step_count += chunk
             done += chunk
