@@ -172,8 +172,7 @@ class Space:
 
     def in_obstacle(self, points: Sequence) -> np.ndarray:
         """Whether each point lies strictly inside an obstacle (any of :meth:`inside_each`)."""
-        x = np.asarray(points, dtype=np.float64)
-        return self.inside_each(x).any(axis=0) if self.obstacles else np.zeros(x.shape[:-1], dtype=bool)
+        return self.inside_each(points).any(axis=0)
 
     def inside_each(self, points: Sequence) -> np.ndarray:
         """Whether each point lies strictly inside each obstacle, ``(obstacles, *points)``:
