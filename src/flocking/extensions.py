@@ -25,7 +25,7 @@ import numbers
 from typing import Any
 
 from .checks import ParameterError, comma_numbers, fail, real
-from .rules.geometry import minimum_image
+from .rules.geometry import minimum_image, reach
 
 BOUNDARIES = ("periodic", "wall")
 
@@ -274,7 +274,7 @@ def periodic_distance(a: tuple[float, ...], b: tuple[float, ...], box: tuple[flo
     """
     total = 0.0
     for x, y, length, wall in zip(a, b, box, walls):
-        dx = minimum_image(x - y, length, math.inf if wall else length / 2)
+        dx = minimum_image(x - y, length, reach(length, wall))
         total += dx * dx
     return math.sqrt(total)
 

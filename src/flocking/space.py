@@ -39,6 +39,7 @@ from .model import Model
 from .neighbour_query import BLOCK_PAIRS, CellList, NeighbourQuery, Pairs
 from .rules import compile as compile_rules
 from .rules import rebind, source_digest
+from .rules.geometry import reach
 
 _R = compile_rules("cpu")
 
@@ -129,7 +130,7 @@ class Space:
     def half(self) -> np.ndarray:
         """How far a displacement reaches before it is folded: ``L/2`` along periodic
         axes, infinite along axes with walls."""
-        return np.where(self.walls, np.inf, self.lengths / 2)
+        return np.array([reach(length, wall) for length, wall in zip(self.box, self.walls)])
 
     @property
     def periodic(self) -> np.ndarray:

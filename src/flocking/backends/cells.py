@@ -241,7 +241,8 @@ def gather_unit(u, nseg, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows,
     c1 = min(nc[0], c0 + SEGMENT)
     while gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, d) < 0:
         buf = np.empty((buf.shape[0], 2 * buf.shape[1]))
-    s0, s1 = start[line * nc[0] + c0], start[line * nc[0] + c1]
+    gy, gz = line % nc[1], line // nc[1]
+    s0, s1 = start[R.cell_number(c0, gy, gz, nc[0], nc[1])], start[R.cell_number(c1, gy, gz, nc[0], nc[1])]
     if s1 - s0 > out.shape[1]:
         out = np.empty((out.shape[0], 2 * (s1 - s0)))
     return line, c0, c1, s0, s1, buf, out

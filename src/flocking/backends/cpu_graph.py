@@ -49,7 +49,7 @@ def voronoi_sums(i, pos, head, ids, box, tb, si, offsets, nbrs):
             dz = R.minimum_image(pos[2, j] - pos[2, i], box[2], tb.half[2])
             d2 += dz * dz
         s = R.plus(s, pair_terms(i, j, dx, dy, dz, d2, True, pos, head, ids, tb, si))
-    return s[:3] + (s[3] + 1.0,) + s[4:]
+    return R.counted(s)
 
 
 def graph(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, ring, slot, step, seed, params, partial,

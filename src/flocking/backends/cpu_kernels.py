@@ -393,7 +393,7 @@ def metric_sums(i, c, pos, head, ids, start, nc, box, r2, tb, si):
                     if t[3] != 0.0:  # only what counts is added, as the reference adds it
                         s = R.plus(s, t)
     if WEIGHTED:  # the count includes the particle itself
-        s = s[:3] + (s[3] + 1.0,) + s[4:]
+        s = R.counted(s)
     return s
 
 
@@ -441,12 +441,12 @@ def advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step
         # particles ahead so that its cache miss overlaps work
         intrinsics.prefetch(ring, slot, ids[min(np.int64(i) + 4, n - 1)])
         if not WEIGHTED:  # the ring holds the others' sum
-            s = (s[0] - ux, s[1] - uy, s[2] - uz if d == 3 else 0.0) + s[3:]
+            s = R.with_own(s, -1.0, ux, uy, uz)
         past = R.recall(ring, slot, pid, d, COHESION)
         R.keep(ring, slot, pid, s, d, COHESION)
-        s = (ux + past[0], uy + past[1], uz + past[2] if d == 3 else 0.0) + past[3:]
+        s = R.with_own(past, 1.0, ux, uy, uz)
     elif WEIGHTED:
-        s = (ux + s[0], uy + s[1], uz + s[2] if d == 3 else 0.0) + s[3:]
+        s = R.with_own(s, 1.0, ux, uy, uz)
     if EXTENDED:
         si = species(pid, tb.bounds)
         eta, epsilon, h = tb.species[si, 0], tb.species[si, 1], tb.species[si, 4]
@@ -514,7 +514,7 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
     r2 = params.r2
     pv = R.pair_values(tb.pair)  # in registers: read once, not per pair
     inv = nc / box
-    shifts = box * (1.0 + tb.walls) if EXTENDED else box  # 2L across a wall: a wrapped copy is never within R
+    shifts = tb.shifts if EXTENDED else box  # what a periodic image is shifted by (2L across a wall)
     nx = nc[0]
     nseg = (nx + cells.SEGMENT - 1) // cells.SEGMENT
     nunits = cells.work_units(nc, n, 0)
@@ -540,6 +540,7 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
         else:
             line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
                                                                shifts, buf, rows, out, d)
+        gy, gz = line % nc[1], line // nc[1]
         if COHESION and near.shape[1] < buf.shape[1] + 4:
             near = np.empty((d, buf.shape[1] + 4))
             sums = np.empty((2 * d + 1, near.shape[1] + 4))
@@ -547,7 +548,7 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
         # loop: its iterations are independent, so the processor overlaps their long
         # chains of dependent operations (it cannot across the reductions)
         for cx in range(c0, c1):
-            c = line * nx + cx
+            c = R.cell_number(cx, gy, gz, nx, nc[1])
             cells.candidate_ranges(cx, nx, start, rows, ranges)
             if not WEIGHTED and d == 2:
                 reduce_2d(buf, ranges, x, y, start[c], start[c + 1], r2, out, start[c] - s0)
@@ -577,7 +578,7 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
                 # the sums include the particle itself, with its own species'
                 # coupling, in its cone, of its own sense: take it out
                 w = tb.coupling[int(tag[i]), int(tag[i])] if COUPLING else 1.0
-                s = (s[0] - w * hx[i], s[1] - w * hy[i], s[2] - w * hz[i] if d == 3 else 0.0) + s[3:]
+                s = R.with_own(s, -w, hx[i], hy[i], hz[i] if d == 3 else 0.0)
             wx, wy, wz = advance(i, s, pos, head, spd, ids, new_pos, new_head, cell, ring, slot, step, seed,
                                  params, nc, inv, box, tb)
             if EXTENDED:

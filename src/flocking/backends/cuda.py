@@ -50,6 +50,7 @@ import numpy as np
 
 from ..model import Model, ParameterError
 from ..observables import heading_total, moment_width
+from ..rules.geometry import image_shift
 from ..space import Space
 from ..state import State, frame_arrays
 from . import cuda_init
@@ -556,7 +557,7 @@ def geometry_record(model: Model, real, replicas: int = 1, rows: int = 1, speeds
         values[f"inv{a}"] = nc3[a] / box3[a]
         values[f"l{a}"] = box3[a]
         values[f"h{a}"] = half3[a]
-        values[f"s{a}"] = 2.0 * box3[a] if walls3[a] else box3[a]
+        values[f"s{a}"] = image_shift(box3[a], walls3[a])
     dtype = geometry_dtype(real)
     record = np.zeros(1, dtype=dtype)
     for name in dtype.names:

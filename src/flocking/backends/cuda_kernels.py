@@ -278,7 +278,7 @@ def step(cur, start, new, rec, P, rp, tb, clock, ring, prime):
         bi = cuda.local.array(KA, np.int32)
         bs = cuda.local.array(KA, np.int32)
         s = nearest(i, cb, cur, start, p, tb, si, bd, bi, bs)
-    s = s[:3] + (ONE + s[3],) + s[4:]
+    s = R.counted(s)
     if not DELAY:
         # here, not before the search: held across it, they took 3 more registers
         gid = r * n + pid
@@ -299,7 +299,7 @@ def move(i, pid, gid, r, cb, s, cur, new, rec, p, rp, tb, si, t):
     pos, head = cur.pos, cur.head
     ux, uy = head[0, i], head[1, i]
     uz = head[2, i] if DIM == 3 else ZERO
-    s = (ux + s[0], uy + s[1], uz + s[2]) + s[3:]
+    s = R.with_own(s, ONE, ux, uy, uz)
     if EXTENDED:
         eta, epsilon = tb.species[r, si, 0], tb.species[r, si, 1]
         cturn, sturn, h = tb.species[r, si, 2], tb.species[r, si, 3], tb.species[r, si, 4]

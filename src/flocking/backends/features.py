@@ -27,6 +27,7 @@ import numpy as np
 from ..model import Model
 from ..rules import step as ring_layout
 from ..rules import switch_constants
+from ..rules.geometry import image_shift
 from ..rules.physics import PAIR
 from ..space import Space
 
@@ -91,6 +92,8 @@ class Tables(typing.NamedTuple):
     - ``walls`` (d, int64): 1 along an axis closed by walls;
     - ``half`` (d): how far a displacement reaches before the minimum image folds it,
       ``L/2``, or infinite along walls;
+    - ``shifts`` (d): what a periodic image copied across the box's end is shifted by,
+      ``L``, or ``2L`` along walls (:func:`flocking.rules.geometry.image_shift`);
     - ``obstacles`` (M, d + 1): centre, radius;
     - ``bounds`` (S + 1, int64): the first id of each species, then ``N``;
     - ``species`` (S, 5): per species the noise, the alignment, the cosine and the sine
@@ -110,6 +113,7 @@ class Tables(typing.NamedTuple):
 
     walls: np.ndarray
     half: np.ndarray
+    shifts: np.ndarray
     obstacles: np.ndarray
     bounds: np.ndarray
     species: np.ndarray
@@ -120,7 +124,12 @@ class Tables(typing.NamedTuple):
 
 
 def tables(model: Model) -> Tables:
-    """The :class:`Tables` of ``model``."""
+    """The :class:`Tables` of ``model``.
+
+    >>> tb = tables(Model(n=10, box=(4.0, 6.0), boundary="periodic,wall"))
+    >>> tb.half.tolist(), tb.shifts.tolist()
+    ([2.0, inf], [4.0, 12.0])
+    """
     d = model.dim
     walls = np.asarray(model.walls, dtype=np.int64)
     obstacles = np.array([[*o.centre, o.radius] for o in model.obstacles], dtype=np.float64).reshape(-1, d + 1)
@@ -138,7 +147,8 @@ def tables(model: Model) -> Tables:
     if model.cohesion:
         rc, re, ra = model.cohesion_radii
         pair.update(rc2=rc * rc, re=re, ra=ra, slope=1.0 / (4.0 * (ra - re)))
-    return Tables(walls=walls, half=Space.of(model).half, obstacles=obstacles,
+    shifts = np.array([image_shift(length, wall) for length, wall in zip(model.box, model.walls)])
+    return Tables(walls=walls, half=Space.of(model).half, shifts=shifts, obstacles=obstacles,
                   bounds=np.concatenate([[0], np.cumsum(model.species_counts)]).astype(np.int64),
                   species=species, coupling=coupling, field=field, beta=np.array([float(model.cohesion)]),
                   pair=np.array([pair[name] for name in PAIR]))

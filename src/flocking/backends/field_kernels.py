@@ -34,11 +34,13 @@ DIM, NSPECIES, NEM = 2, 1, 0
 
 
 def bin_of(pos, i, inv0, inv1, inv2, m0, m1, m2):
-    """The bin of slot ``i`` (``pos`` ``(d, M)``, any float type; binned in float64)."""
-    b = R.cell_index(np.float64(pos[0, i]), inv0, m0) + R.cell_index(np.float64(pos[1, i]), inv1, m1) * m0
+    """The bin of slot ``i`` (``pos`` ``(d, M)``, any float type; binned in float64),
+    numbered as the engine numbers its cells (:func:`flocking.rules.geometry.cell_number`)."""
+    cz = 0
     if DIM == 3:
-        b += R.cell_index(np.float64(pos[2, i]), inv2, m2) * m1 * m0
-    return b
+        cz = R.cell_index(np.float64(pos[2, i]), inv2, m2)
+    return R.cell_number(R.cell_index(np.float64(pos[0, i]), inv0, m0), R.cell_index(np.float64(pos[1, i]), inv1, m1),
+                         cz, m0, m1)
 
 
 def species_row(pid, bounds):

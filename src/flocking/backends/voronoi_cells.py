@@ -65,8 +65,8 @@ def cell_neighbours(i, pos, start, nc, box, walls, tol, px, py, tag, qx, qy, qta
     step = min(hx, hy)
     c0 = cells.cell_of(pos, i, nc, nc / box)  # the cell the sort put it in
     gx, gy, _ = R.cell_coords(c0, nc[0], nc[1])
-    half_x = np.inf if walls[0] else 0.5 * box[0]  # the minimum image's reach (none across walls)
-    half_y = np.inf if walls[1] else 0.5 * box[1]
+    half_x = R.reach(box[0], walls[0])  # the minimum image's reach (none across walls)
+    half_y = R.reach(box[1], walls[1])
     lo_x, hi_x = (-xi, box[0] - xi) if walls[0] else (-half_x, half_x)
     lo_y, hi_y = (-yi, box[1] - yi) if walls[1] else (-half_y, half_y)
     px[0], py[0], px[1], py[1] = lo_x, lo_y, hi_x, lo_y

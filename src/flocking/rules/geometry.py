@@ -18,6 +18,8 @@ folded into ``[-L/2, L/2]``) or closed by walls (coordinates in ``[0, L]``, no f
 (2, 0, 0)
 >>> cell_number(1, 2, 3, 4, 5), cell_coords(cell_number(1, 2, 3, 4, 5), 4, 5)
 (69, (1, 2, 3))
+>>> reach(4.0, False), reach(4.0, True), image_shift(4.0, False), image_shift(4.0, True)
+(2.0, inf, 4.0, 8.0)
 """
 
 import math
@@ -26,9 +28,27 @@ REAL = float
 ZERO, ONE, TWO, INF = 0.0, 1.0, 2.0, math.inf
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("wrap", "minimum_image", "cell_index", "cell_number", "cell_coords", "fold", "push_out_2d", "push_out_3d")
+RULES = ("reach", "image_shift", "wrap", "minimum_image", "cell_index", "cell_number", "cell_coords", "fold", "push_out_2d", "push_out_3d")
 #: the rules numba inlines into their callers (:func:`flocking.rules.compile` says which)
 INLINED = ()
+
+
+def reach(length, wall):
+    """How far a displacement along an axis of side ``length`` reaches before the minimum
+    image folds it (the ``half`` of :func:`minimum_image`): ``length / 2`` along a
+    periodic axis, infinite across walls."""
+    if wall:
+        return INF
+    return length / TWO
+
+
+def image_shift(length, wall):
+    """What a periodic image copied across the box's end along an axis is shifted by: the
+    side ``length``, or across walls ``2 length``, which puts every wrapped copy out of
+    reach of the particles inside."""
+    if wall:
+        return TWO * length
+    return length
 
 
 def wrap(x, length):

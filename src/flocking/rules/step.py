@@ -16,6 +16,8 @@ heading goes into the run's moment sums (its species' polar order, the nematic o
 (1.0, 2.0, 0.0, 2.0)
 >>> width(2, False), width(3, True)
 (3, 11)
+>>> counted(s)[3], with_own(s, -1.0, 1.0, 0.5, 0.0)[:4]
+(3.0, (0.0, 1.5, 0.0, 2.0))
 """
 
 from .geometry import fold, push_out_2d, push_out_3d, wrap
@@ -29,7 +31,7 @@ from .physics import (
 )
 
 REAL = float
-ZERO = 0.0
+ZERO, ONE = 0.0, 1.0
 
 #: what a particle's sums hold, in order: adding a sum is a name here and its term in
 #: :func:`flocking.rules.physics.neighbour`
@@ -38,7 +40,7 @@ SUMS = ("sx", "sy", "sz", "count", "pull_x", "pull_y", "pull_z", "push_x", "push
 SUM0 = (0.0,) * len(SUMS)
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("plus", "finish", "keep", "recall", "add_moments")
+RULES = ("plus", "counted", "with_own", "finish", "keep", "recall", "add_moments")
 #: the rules numba inlines into their callers (:func:`flocking.rules.compile` says which)
 INLINED = ("finish", "keep", "recall", "add_moments")
 
@@ -47,6 +49,18 @@ def plus(s, t):
     """``s + t``, sum by sum (:data:`SUMS`)."""
     return (s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3], s[4] + t[4], s[5] + t[5], s[6] + t[6],
             s[7] + t[7], s[8] + t[8], s[9] + t[9], s[10] + t[10])
+
+
+def counted(s):
+    """The sums ``s`` with the particle itself counted: one more in the count."""
+    return s[:3] + (s[3] + ONE,) + s[4:]
+
+
+def with_own(s, w, ux, uy, uz):
+    """The sums ``s`` with the particle's own heading ``u`` added with weight ``w`` (a
+    negative ``w`` takes it out): ``S + w u``. :func:`finish` takes the heading sum with
+    the particle's own heading in it, with weight 1; the delay ring keeps it without."""
+    return (s[0] + w * ux, s[1] + w * uy, s[2] + w * uz) + s[3:]
 
 
 def width(dim, cohesion):
