@@ -28,7 +28,8 @@ REAL = float
 ZERO, ONE, TWO, INF = 0.0, 1.0, 2.0, math.inf
 
 #: the functions of this module that the compiler builds, callees first
-RULES = ("reach", "image_shift", "wrap", "minimum_image", "cell_index", "cell_number", "cell_coords", "fold", "push_out_2d", "push_out_3d")
+RULES = ("reach", "image_shift", "wrap", "minimum_image", "cell_index", "cell_number", "cell_coords", "fold",
+         "push_out_2d", "push_out_3d")
 #: the rules numba inlines into their callers (:func:`flocking.rules.compile` says which)
 INLINED = ()
 
