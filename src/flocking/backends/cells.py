@@ -180,9 +180,10 @@ def neighbour_line(gy, gz, r, nc, box, d):
 
 
 @cached()
-def gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, rows, d):
-    """Copy what the cells ``c0..c1-1`` of a line of cells need into ``buf``; returns how
-    many entries it used, or -1 (nothing copied) if the buffer is too small.
+def gather_rows(gy, gz, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, rows, d):
+    """Copy what the cells ``c0..c1-1`` of the line of cells ``(gy, gz)`` need into
+    ``buf``; returns how many entries it used, or -1 (nothing copied) if the buffer is too
+    small.
 
     A line is a row of cells along x (in 3D, one per (y, z)). The 3 (3D: 9) lines around
     it (this one included) each hold the columns ``c0 - 1 .. c1`` as one contiguous range
@@ -196,8 +197,7 @@ def gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, row
     puts every wrapped copy out of reach. Unless ``tag`` is None, rows ``2d, 2d + 1, ...``
     get ``tag[:, slot]`` (the extensions' couplings to the slot's species).
     """
-    nx, ny = nc[0], nc[1]
-    gy, gz = line % ny, line // ny
+    nx = nc[0]
     nr = rows.shape[0]
     need = 0
     for r in range(nr):
@@ -232,20 +232,20 @@ def gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, box, buf, row
 @cached(inline="always")
 def gather_unit(u, nseg, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, out, d):
     """Unit ``u`` of the line kernels, segment ``u % nseg`` of line ``u // nseg`` (as
-    :func:`work_units` counts them): its line, columns ``c0..c1-1`` and slots ``s0..s1-1``,
-    with its candidates gathered into ``buf`` (:func:`gather_rows`; ``shifts`` and ``tag``
-    as there). Returns those and ``buf`` and ``out`` (sums, a column per slot), each
-    replaced by a larger one where the unit needs more room."""
+    :func:`work_units` counts them): its line ``(gy, gz)``, columns ``c0..c1-1`` and slots
+    ``s0..s1-1``, with its candidates gathered into ``buf`` (:func:`gather_rows`; ``shifts``
+    and ``tag`` as there). Returns those and ``buf`` and ``out`` (sums, a column per slot),
+    each replaced by a larger one where the unit needs more room."""
     line = u // nseg
+    gy, gz = line % nc[1], line // nc[1]
     c0 = (u % nseg) * SEGMENT
     c1 = min(nc[0], c0 + SEGMENT)
-    while gather_rows(line, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, d) < 0:
+    while gather_rows(gy, gz, c0, c1, x, y, z, hx, hy, hz, tag, start, nc, shifts, buf, rows, d) < 0:
         buf = np.empty((buf.shape[0], 2 * buf.shape[1]))
-    gy, gz = line % nc[1], line // nc[1]
     s0, s1 = start[R.cell_number(c0, gy, gz, nc[0], nc[1])], start[R.cell_number(c1, gy, gz, nc[0], nc[1])]
     if s1 - s0 > out.shape[1]:
         out = np.empty((out.shape[0], 2 * (s1 - s0)))
-    return line, c0, c1, s0, s1, buf, out
+    return gy, gz, c0, c1, s0, s1, buf, out
 
 
 @cached(inline="always")

@@ -535,12 +535,11 @@ def line_units(pos, head, spd, ids, start, nc, box, new_pos, new_head, cell, rin
         if u >= nunits:
             break
         if COUPLING:
-            line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, cols, start, nc,
-                                                               shifts, buf, rows, out, d)
+            gy, gz, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, cols, start, nc,
+                                                                   shifts, buf, rows, out, d)
         else:
-            line, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
-                                                               shifts, buf, rows, out, d)
-        gy, gz = line % nc[1], line // nc[1]
+            gy, gz, c0, c1, s0, s1, buf, out = cells.gather_unit(u, nseg, x, y, z, hx, hy, hz, None, start, nc,
+                                                                   shifts, buf, rows, out, d)
         if COHESION and near.shape[1] < buf.shape[1] + 4:
             near = np.empty((d, buf.shape[1] + 4))
             sums = np.empty((2 * d + 1, near.shape[1] + 4))
